@@ -1,0 +1,342 @@
+"""Normal integration: unit normals -> surface gradients -> height map in micrometres.
+
+Conventions. Normals are in the camera frame (x right, y up, z toward the camera). A surface
+z(x, y) has normal proportional to (-dz/dx, -dz/dy, 1), so
+
+    p = dz/dx = -n_x / n_z,    q = dz/dy = -n_y / n_z        (dimensionless).
+
+Image rows run downward (-y), so along the array axes dz/dcolumn = p dx and
+dz/drow = -q dy. Heights come out in micrometres because the spacing is in micrometres.
+
+Three integrators:
+
+* :func:`frankot_chellappa` -- the paper's: projection onto the integrable Fourier basis
+  (Frankot & Chellappa 1988). Periodic boundaries are its known weakness on real,
+  non-periodic fields; the mean gradient (overall tilt) is removed first and the plane
+  added back.
+* :func:`dct_poisson` -- least squares with free (Neumann) boundaries, solved exactly by the
+  type-II DCT (Simchony, Chellappa & Shao 1990), on height *differences between
+  neighbouring pixels* obtained from the pixel-centre gradients by fourth-order quadrature.
+  The plain trapezoid rule (the classic second-order scheme) loses about 11% RMS on a
+  4-pixel period; the fourth-order rule keeps fine detail. This is the default: most
+  accurate on the analytic tests at the speed of an FFT.
+* :func:`masked_least_squares` -- the same least-squares problem restricted to an arbitrary
+  (non-rectangular) mask, solved with algebraic multigrid (pyamg).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+import scipy.ndimage
+import scipy.sparse
+
+from skintopo.errors import SkinTopoError
+from skintopo.heightmap import HeightMap
+
+MIN_NZ = 1e-3  # normals more grazing than ~89.9 degrees give no usable gradient
+_WORKERS = -1  # scipy.fft: use every core
+
+
+def normals_to_gradients(normals):
+    """Surface gradients p = dz/dx = -n_x/n_z and q = dz/dy = -n_y/n_z.
+
+    Parameters
+    ----------
+    normals : array_like, shape (rows, columns, 3)
+        Unit normals in the camera frame; NaN where invalid.
+
+    Returns
+    -------
+    p, q : ndarray, shape (rows, columns)
+        Dimensionless slopes along +x (right) and +y (up); NaN where the normal is invalid or
+        within 0.06 degrees of grazing (n_z < 1e-3).
+    """
+    normals = np.asarray(normals, dtype=np.float64)
+    if normals.ndim != 3 or normals.shape[2] != 3:
+        raise SkinTopoError(f"normals must have shape (rows, columns, 3), got {normals.shape}")
+    nz = normals[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = nz > MIN_NZ
+        p = np.where(ok, -normals[..., 0] / nz, np.nan)
+        q = np.where(ok, -normals[..., 1] / nz, np.nan)
+    return p, q
+
+
+def _spacing(spacing):
+    dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
+    if not (dx > 0 and dy > 0):
+        raise SkinTopoError(f"pixel spacing must be positive, got {spacing!r}")
+    return float(dy), float(dx)
+
+
+def _array_gradients(p, q, spacing):
+    """Height change per pixel step along columns and rows: (p dx, -q dy)."""
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    if p.shape != q.shape or p.ndim != 2:
+        raise SkinTopoError(f"p and q must be 2-D arrays of one shape, got {p.shape} and {q.shape}")
+    dy, dx = _spacing(spacing)
+    return p * dx, -q * dy
+
+
+def edge_differences(slope, axis):
+    """Height differences z[i+1] - z[i] between neighbours from slopes sampled at pixel centres.
+
+    Fourth-order quadrature of the slope (per pixel step) over each edge:
+
+        interior:  (-g[i-1] + 13 g[i] + 13 g[i+1] - g[i+2]) / 24
+        ends:      (5 g[0] + 8 g[1] - g[2]) / 12     (and its mirror)
+
+    both exact for cubic (interior) and quadratic (ends) slopes. Where a neighbour needed by
+    the higher-order rule is NaN, the trapezoid rule (g[i] + g[i+1]) / 2 is used; an edge with
+    a NaN end is NaN.
+    """
+    g = np.moveaxis(np.asarray(slope, dtype=np.float64), axis, 0)
+    n = g.shape[0]
+    if n < 3:
+        return np.moveaxis((g[:-1] + g[1:]) / 2, 0, axis)
+    out = np.empty((n - 1,) + g.shape[1:])
+    interior = out[1:-1]
+    np.add(g[1:-2], g[2:-1], out=interior)
+    interior *= 13
+    interior -= g[:-3]
+    interior -= g[3:]
+    interior /= 24
+    out[0] = (5 * g[0] + 8 * g[1] - g[2]) / 12
+    out[-1] = (5 * g[-1] + 8 * g[-2] - g[-3]) / 12
+    fallback = ~np.isfinite(out)
+    if fallback.any():
+        trapezoid = (g[:-1] + g[1:]) / 2
+        out[fallback] = trapezoid[fallback]
+    return np.moveaxis(out, 0, axis)
+
+
+def _fill_invalid(gx, gy):
+    """Slopes with NaN replaced by 0 (for the whole-field integrators) and the invalid mask."""
+    invalid = ~(np.isfinite(gx) & np.isfinite(gy))
+    if invalid.any():
+        gx = np.where(invalid, 0.0, gx)
+        gy = np.where(invalid, 0.0, gy)
+    return gx, gy, invalid
+
+
+def frankot_chellappa(p, q, spacing=1.0):
+    """Frankot-Chellappa integration (the paper's integrator).
+
+    With the mean slope (p0, q0) removed, the Fourier transform of z is the least-squares
+    projection of the slopes onto integrable periodic surfaces:
+
+        Z(u, v) = (-i u P(u, v) - i v Q(u, v)) / (u^2 + v^2),   Z(0, 0) = 0,
+
+    with u, v the angular frequencies per pixel along columns and rows; the plane
+    p0 x + q0 y is added back.
+
+    Parameters
+    ----------
+    p, q : array_like, shape (rows, columns)
+        dz/dx and dz/dy (x right, y up), dimensionless. NaN slopes are taken as 0.
+    spacing : float or (dy, dx)
+        Pixel spacing in micrometres.
+
+    Returns
+    -------
+    ndarray
+        Height in micrometres, mean zero (NaN where p or q was NaN).
+
+    Notes
+    -----
+    The Fourier basis assumes the field is periodic: on a non-periodic surface the error
+    concentrates at the border (see the tests).
+    """
+    gx, gy, invalid = _fill_invalid(*_array_gradients(p, q, spacing))
+    rows, columns = gx.shape
+    mean_x, mean_y = gx.mean(), gy.mean()
+    u = 2 * np.pi * scipy.fft.rfftfreq(columns)[None, :]
+    v = 2 * np.pi * scipy.fft.fftfreq(rows)[:, None]
+    gx_hat = scipy.fft.rfft2(gx - mean_x, workers=_WORKERS)
+    gy_hat = scipy.fft.rfft2(gy - mean_y, workers=_WORKERS)
+    denominator = u**2 + v**2
+    denominator[0, 0] = 1.0
+    z_hat = (-1j * u * gx_hat - 1j * v * gy_hat) / denominator
+    z_hat[0, 0] = 0.0
+    z = scipy.fft.irfft2(z_hat, s=(rows, columns), workers=_WORKERS)
+    column_index = np.arange(columns) - (columns - 1) / 2
+    row_index = np.arange(rows) - (rows - 1) / 2
+    z += mean_x * column_index[None, :] + mean_y * row_index[:, None]
+    z[invalid] = np.nan
+    return z
+
+
+def dct_poisson(p, q, spacing=1.0):
+    """Least-squares integration with free (Neumann) boundaries by the DCT.
+
+    Minimises sum over neighbour edges of (z_j - z_i - d_ij)^2, where d_ij are the
+    fourth-order edge differences of :func:`edge_differences`. The normal equations are the
+    discrete Poisson equation D^T D z = D^T d (graph Laplacian, Neumann boundaries), diagonalised by the
+    type-II DCT:
+
+        z_hat(k, l) = f_hat(k, l) / (4 - 2 cos(pi k / W) - 2 cos(pi l / H)),   z_hat(0, 0) = 0
+
+    (Simchony, Chellappa & Shao 1990). Consistent differences are reproduced exactly, so the
+    error is that of the quadrature, O(h^4).
+
+    Parameters
+    ----------
+    p, q : array_like, shape (rows, columns)
+        dz/dx and dz/dy (x right, y up), dimensionless. NaN slopes are taken as 0.
+    spacing : float or (dy, dx)
+        Pixel spacing in micrometres.
+
+    Returns
+    -------
+    ndarray
+        Height in micrometres, mean zero over the field (NaN where p or q was NaN).
+    """
+    gx, gy, invalid = _fill_invalid(*_array_gradients(p, q, spacing))
+    rows, columns = gx.shape
+    dx_edges = edge_differences(gx, axis=1)  # (rows, columns - 1)
+    dy_edges = edge_differences(gy, axis=0)  # (rows - 1, columns)
+    # Divergence: sum of differences leaving each pixel minus those arriving (Neumann: none beyond).
+    divergence = np.zeros((rows, columns))
+    divergence[:, :-1] -= dx_edges
+    divergence[:, 1:] += dx_edges
+    divergence[:-1, :] -= dy_edges
+    divergence[1:, :] += dy_edges
+    f_hat = scipy.fft.dctn(divergence, type=2, norm="ortho", workers=_WORKERS)
+    eig = (2 - 2 * np.cos(np.pi * np.arange(columns) / columns))[None, :] + (
+        2 - 2 * np.cos(np.pi * np.arange(rows) / rows)
+    )[:, None]
+    eig[0, 0] = 1.0
+    f_hat /= eig
+    f_hat[0, 0] = 0.0
+    z = scipy.fft.idctn(f_hat, type=2, norm="ortho", overwrite_x=True, workers=_WORKERS)
+    z[invalid] = np.nan
+    return z
+
+
+def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
+    """Least-squares integration over an arbitrary mask (sparse solve, algebraic multigrid).
+
+    Minimises sum over edges with both ends in the mask of (z_j - z_i - d_ij)^2 (d_ij as in
+    :func:`edge_differences`, trapezoid rule where the fourth-order stencil would leave the
+    mask). The normal equations D^T D z = D^T d form a graph Laplacian, solved by smoothed-
+    aggregation multigrid-preconditioned conjugate gradients (pyamg). Each connected region
+    of the mask is set to mean zero: the height offset between disconnected regions cannot
+    be known from slopes.
+
+    Parameters
+    ----------
+    p, q : array_like, shape (rows, columns)
+        dz/dx and dz/dy (x right, y up), dimensionless.
+    spacing : float or (dy, dx)
+        Pixel spacing in micrometres.
+    mask : array_like of bool, optional
+        Pixels to integrate; default every pixel with finite p and q.
+    tolerance : float
+        Relative residual at which the solver stops.
+
+    Returns
+    -------
+    ndarray
+        Height in micrometres, NaN outside the mask.
+    """
+    import pyamg
+
+    gx, gy = _array_gradients(p, q, spacing)
+    valid = np.isfinite(gx) & np.isfinite(gy)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != gx.shape:
+            raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {gx.shape}")
+        valid &= mask
+    gx = np.where(valid, gx, np.nan)
+    gy = np.where(valid, gy, np.nan)
+    rows, columns = gx.shape
+    index = np.full((rows, columns), -1)
+    index[valid] = np.arange(valid.sum())
+    z = np.full((rows, columns), np.nan)
+    if not valid.any():
+        return z
+
+    starts, ends, values = [], [], []
+    for axis, slope in ((1, gx), (0, gy)):
+        d = edge_differences(slope, axis=axis)
+        first = index[:, :-1] if axis == 1 else index[:-1, :]
+        second = index[:, 1:] if axis == 1 else index[1:, :]
+        keep = (first >= 0) & (second >= 0) & np.isfinite(d)
+        starts.append(first[keep])
+        ends.append(second[keep])
+        values.append(d[keep])
+    starts, ends, values = (np.concatenate(a) for a in (starts, ends, values))
+    n_edges, n_pixels = starts.size, int(valid.sum())
+    edge_rows = np.arange(n_edges)
+    difference = scipy.sparse.csr_matrix(
+        (np.r_[-np.ones(n_edges), np.ones(n_edges)], (np.r_[edge_rows, edge_rows], np.r_[starts, ends])),
+        shape=(n_edges, n_pixels),
+    )
+    laplacian = (difference.T @ difference).tocsr()
+    rhs = difference.T @ values
+    # Pin the null space (one constant per connected region) with a tiny diagonal shift on one
+    # pixel of each region; the per-region mean is removed afterwards.
+    labels, n_regions = scipy.ndimage.label(valid)
+    pixel_labels = labels[valid]
+    first_of_region = np.unique(pixel_labels, return_index=True)[1]
+    pin = scipy.sparse.csr_matrix((np.ones(first_of_region.size), (first_of_region, first_of_region)), shape=laplacian.shape)
+    system = (laplacian + pin).tocsr()
+    solver = pyamg.smoothed_aggregation_solver(system, symmetry="symmetric")
+    solution = solver.solve(rhs, tol=tolerance, accel="cg", maxiter=500)
+    region_sum = np.bincount(pixel_labels, weights=solution, minlength=n_regions + 1)
+    region_count = np.bincount(pixel_labels, minlength=n_regions + 1)
+    solution -= (region_sum / np.maximum(region_count, 1))[pixel_labels]
+    z[valid] = solution
+    return z
+
+
+INTEGRATORS = {
+    "dct-poisson": dct_poisson,
+    "frankot-chellappa": frankot_chellappa,
+    "least-squares": masked_least_squares,
+}
+AUTO = "auto"
+DEFAULT_INTEGRATOR = AUTO
+
+
+def integrate_normals(normals, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
+    """Integrate a normal field to a :class:`~skintopo.heightmap.HeightMap`.
+
+    Parameters
+    ----------
+    normals : array_like, shape (rows, columns, 3)
+        Unit normals in the camera frame, NaN where invalid.
+    spacing : float or (dy, dx)
+        Pixel spacing in micrometres.
+    mask : array_like of bool, optional
+        Pixels to keep (and, for ``least-squares``, to integrate over).
+    method : str
+        ``auto`` (default): ``dct-poisson`` when every pixel has a valid normal (a rectangular
+        field), else ``least-squares`` over the valid pixels, since filling holes with zero
+        slope would bend the surface around them. Or ``dct-poisson``, ``frankot-chellappa``,
+        ``least-squares`` by name.
+
+    Returns
+    -------
+    HeightMap
+        Height in micrometres, positive toward the camera.
+    """
+    if method != AUTO and method not in INTEGRATORS:
+        raise SkinTopoError(f"unknown integrator {method!r}; choose from {[AUTO, *sorted(INTEGRATORS)]}")
+    p, q = normals_to_gradients(normals)
+    valid = np.isfinite(p) & np.isfinite(q)
+    if mask is not None:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != p.shape:
+            raise SkinTopoError(f"mask shape {mask.shape} differs from normals shape {p.shape}")
+        valid &= mask
+    if method == AUTO:
+        method = "dct-poisson" if valid.all() else "least-squares"
+    if method == "least-squares":
+        z = masked_least_squares(p, q, spacing, valid)
+    else:
+        z = INTEGRATORS[method](p, q, spacing)
+    return HeightMap(z, spacing, valid)

@@ -1,0 +1,200 @@
+"""Lambertian photometric stereo: unit normals, albedo and residual per pixel, for one band.
+
+Under a distant light of unit direction s_i, a Lambertian surface point of albedo rho and
+unit normal n has intensity I_i = rho n . s_i (paper eq. 3-7). With g = rho n and the m x 3
+light matrix S, least squares gives (paper eq. 8)
+
+    g = (S^T S)^-1 S^T I,   rho = |g|,   n = g / |g|.
+
+Observations that are saturated (NaN in the input) or in shadow (below ``shadow_fraction``
+of the pixel's brightest observation) are left out per pixel. Pixels whose observations
+are all usable share one pseudo-inverse; the others solve their own 3 x 3 normal equations
+S^T W S g = S^T W I with W the 0/1 weights, all at once (no loop over pixels). A pixel left
+with fewer than 3 lights, or with lights that no longer span 3-D, is invalid (NaN).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skintopo.acquisition import check_light_directions
+from skintopo.errors import SkinTopoError
+
+DEFAULT_SHADOW_FRACTION = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class PhotometricStereoResult:
+    """Output of :func:`photometric_stereo`.
+
+    Attributes
+    ----------
+    normals : ndarray, shape (rows, columns, 3), float32
+        Unit normals in the camera frame (x right, y up, z toward the camera); NaN where invalid.
+    albedo : ndarray, shape (rows, columns), float32
+        rho = |g|, in the units of the images (fraction of full scale per unit light); NaN where invalid.
+    residual : ndarray, shape (rows, columns), float32
+        RMS of I_i - g . s_i over the observations used; NaN where invalid.
+    lights_used : ndarray, shape (rows, columns), int16
+        Number of observations used in each pixel's fit.
+    valid : ndarray of bool, shape (rows, columns)
+    """
+
+    normals: np.ndarray
+    albedo: np.ndarray
+    residual: np.ndarray
+    lights_used: np.ndarray
+    valid: np.ndarray
+
+
+def _solve_symmetric_3x3(a, b):
+    """Solve a[k] x[k] = b[k] for many symmetric 3 x 3 systems by the adjugate (vectorised).
+
+    ``a`` has shape (k, 6) holding (a00, a01, a02, a11, a12, a22); ``b`` (k, 3).
+    Returns x (k, 3) and the determinant (k,). NumPy's batched solver raises on the first
+    singular matrix, so the closed form is used to let degenerate pixels be flagged instead.
+    """
+    a00, a01, a02, a11, a12, a22 = a.T
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.stack(
+            [
+                c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2],
+                c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2],
+                c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2],
+            ],
+            axis=1,
+        ) / det[:, None]
+    return x, det
+
+
+def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION):
+    """Per-pixel Lambertian least squares, n = (S^T S)^-1 S^T I.
+
+    Parameters
+    ----------
+    images : array_like, shape (m, rows, columns)
+        Linear intensities, already divided by each light's relative intensity. NaN marks an
+        observation to leave out (saturated).
+    lights : array_like, shape (m, 3)
+        Unit light directions in the camera frame.
+    mask : array_like of bool, shape (rows, columns), optional
+        Pixels to solve; the others are invalid.
+    shadow_fraction : float
+        An observation below ``shadow_fraction`` times the pixel's brightest observation is
+        taken as shadowed and left out. 0 keeps every finite observation.
+
+    Returns
+    -------
+    PhotometricStereoResult
+
+    Raises
+    ------
+    SkinTopoError
+        When the light set is unusable (fewer than 3, not unit vectors, coplanar) or the
+        shapes disagree.
+    """
+    images = np.asarray(images, dtype=np.float32)
+    lights = np.asarray(lights, dtype=np.float64)
+    problems = check_light_directions(lights)
+    if problems:
+        raise SkinTopoError("; ".join(problems))
+    if images.ndim != 3 or images.shape[0] != lights.shape[0]:
+        raise SkinTopoError(f"expected images of shape (m={lights.shape[0]}, rows, columns), got {images.shape}")
+    if not 0 <= shadow_fraction < 1:
+        raise SkinTopoError(f"shadow_fraction must be in [0, 1), got {shadow_fraction}")
+    m, rows, columns = images.shape
+    if mask is None:
+        mask = np.ones((rows, columns), dtype=bool)
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != (rows, columns):
+        raise SkinTopoError(f"mask shape {mask.shape} differs from image shape {(rows, columns)}")
+
+    pixels = np.flatnonzero(mask)
+    intensity = images.reshape(m, -1)[:, pixels]  # (m, P)
+    usable = np.isfinite(intensity)
+    peak = np.where(usable, intensity, -np.inf).max(axis=0)
+    if shadow_fraction > 0:
+        with np.errstate(invalid="ignore"):
+            usable &= intensity > shadow_fraction * peak
+    usable &= peak > 0  # a pixel dark under every light has no normal
+    intensity = np.where(usable, intensity, 0)
+    count = usable.sum(axis=0)
+    g = np.full((pixels.size, 3), np.nan)
+
+    full = count == m
+    g[full] = (np.linalg.pinv(lights) @ intensity[:, full]).T  # one pseudo-inverse for all of them
+
+    partial = ~full & (count >= 3)
+    if partial.any():
+        weights = usable[:, partial].T.astype(np.float64)  # (k, m)
+        upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+        outer = np.stack([lights[:, i] * lights[:, j] for i, j in upper], axis=1)  # (m, 6)
+        solution, det = _solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
+        # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
+        scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
+        solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
+        g[partial] = solution
+
+    albedo = np.linalg.norm(g, axis=1)
+    good = np.isfinite(albedo) & (albedo > 0)
+    predicted = np.where(usable, (lights @ np.where(good[:, None], g, 0).T), 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        residual = np.sqrt(((intensity - predicted) ** 2).sum(axis=0) / count)
+        normal = g / albedo[:, None]
+
+    def scatter(values, fill=np.nan, dtype=np.float32):
+        out = np.full((rows * columns,) + values.shape[1:], fill, dtype=dtype)
+        out[pixels] = np.where(good.reshape((-1,) + (1,) * (values.ndim - 1)), values, fill)
+        return out.reshape((rows, columns) + values.shape[1:])
+
+    valid = np.zeros(rows * columns, dtype=bool)
+    valid[pixels] = good
+    return PhotometricStereoResult(
+        normals=scatter(normal),
+        albedo=scatter(albedo),
+        residual=scatter(residual),
+        lights_used=scatter(count, fill=0, dtype=np.int16),
+        valid=valid.reshape(rows, columns),
+    )
+
+
+def angular_error_degrees(normals, reference):
+    """Angle between two normal fields in degrees, per pixel (NaN where either is invalid).
+
+    theta = arccos(clip(n . n_ref, -1, 1)); both inputs are normalised first.
+    """
+    normals = np.asarray(normals, dtype=np.float64)
+    reference = np.asarray(reference, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+        b = reference / np.linalg.norm(reference, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip((a * b).sum(axis=-1), -1.0, 1.0)))
+
+
+def render_lambertian(normals, albedo, lights):
+    """The forward model the solver inverts: I_i = rho max(0, n . s_i) (paper eq. 2-7).
+
+    Attached shadows only (no cast shadows, no interreflection); for the physically based
+    renderer see the simulator.
+
+    Parameters
+    ----------
+    normals : array_like, shape (rows, columns, 3)
+    albedo : float or array_like, shape (rows, columns)
+    lights : array_like, shape (m, 3)
+
+    Returns
+    -------
+    ndarray, shape (m, rows, columns)
+    """
+    shading = np.einsum("rci,mi->mrc", np.asarray(normals, dtype=np.float64), np.asarray(lights, dtype=np.float64))
+    return np.asarray(albedo) * np.maximum(shading, 0.0)
