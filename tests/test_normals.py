@@ -17,8 +17,10 @@ def test_noise_free_lambertian_normals_recovered_within_0_1_degree(name):
     result = photometric_stereo(images, lights)
     error = angular_error_degrees(result.normals, truth)
     print(f"{name}: mean {np.nanmean(error):.2e} deg, max {np.nanmax(error):.2e} deg")
-    lit = (np.einsum("rci,mi->mrc", truth, lights) > 0).sum(axis=0)
-    np.testing.assert_array_equal(result.valid, lit >= 3)  # steep slopes: some pixels see only 2 lights
+    shading = np.einsum("rci,mi->mrc", truth, lights)
+    usable = (shading > 0.05 * shading.max(axis=0)).sum(axis=0)  # the default shadow rule
+    np.testing.assert_array_equal(result.lights_used, usable)
+    np.testing.assert_array_equal(result.valid, usable >= 3)  # steep slopes: some pixels keep only 2 lights
     assert result.valid.mean() > 0.9
     assert np.nanmax(error) < 0.1
     np.testing.assert_allclose(result.albedo[result.valid], albedo[result.valid], rtol=1e-4)

@@ -376,13 +376,15 @@ def _load_manifest(manifest_path, pixel_um, bands, saturation):
         if not isinstance(entry, dict):
             problems.append(f"{label} must be an object")
             continue
+        file = entry.get("file")
+        if isinstance(file, str) and file:
+            label = f"{name}: images[{index}] ({file})"
+        else:
+            problems.append(f"{label}: field 'file' must name an image file")
         for key in sorted(set(entry) - _IMAGE_KEYS):
             problems.append(f"{label}: unknown field {key!r}")
-        file = entry.get("file")
         if not isinstance(file, str) or not file:
-            problems.append(f"{label}: field 'file' must name an image file")
             continue
-        label = f"{name}: images[{index}] ({file})"
         band = entry.get("band")
         if band not in BANDS:
             problems.append(f"{label}: field 'band' must be one of {list(BANDS)}, got {band!r}")
@@ -431,7 +433,8 @@ def _load_manifest(manifest_path, pixel_um, bands, saturation):
             images.append(values / np.float32(intensity))
         if len(images) == len(members):
             lights = np.array([p[2] for p in members], dtype=np.float64)
-            lights /= np.linalg.norm(lights, axis=1, keepdims=True)
+            with np.errstate(invalid="ignore", divide="ignore"):  # bad lights are already reported
+                lights /= np.linalg.norm(lights, axis=1, keepdims=True)
             by_band[band] = BandImages(band, np.stack(images), lights, tuple(str(p[1]) for p in members), members[0][4])
 
     shape = cache.reference[1] if cache.reference else None

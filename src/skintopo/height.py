@@ -85,12 +85,12 @@ def edge_differences(slope, axis):
 
     Fourth-order quadrature of the slope (per pixel step) over each edge:
 
-        interior:  (-g[i-1] + 13 g[i] + 13 g[i+1] - g[i+2]) / 24
-        ends:      (5 g[0] + 8 g[1] - g[2]) / 12     (and its mirror)
+        centred:   (-g[i-1] + 13 g[i] + 13 g[i+1] - g[i+2]) / 24
+        one-sided: (5 g[i] + 8 g[i+1] - g[i+2]) / 12   (or its mirror)
 
-    both exact for cubic (interior) and quadratic (ends) slopes. Where a neighbour needed by
-    the higher-order rule is NaN, the trapezoid rule (g[i] + g[i+1]) / 2 is used; an edge with
-    a NaN end is NaN.
+    exact for cubic (centred) and quadratic (one-sided) slopes. The one-sided rules serve the
+    field's ends and the border of NaN regions (masks); where neither fits, the trapezoid rule
+    (g[i] + g[i+1]) / 2. An edge with a NaN end is NaN.
     """
     g = np.moveaxis(np.asarray(slope, dtype=np.float64), axis, 0)
     n = g.shape[0]
@@ -103,12 +103,19 @@ def edge_differences(slope, axis):
     interior -= g[:-3]
     interior -= g[3:]
     interior /= 24
+    # Third-order one-sided rules where the centred stencil leaves the field (both ends) or
+    # meets a NaN (a mask border): edge i from g[i], g[i+1] and g[i+2], or g[i-1], g[i], g[i+1].
     out[0] = (5 * g[0] + 8 * g[1] - g[2]) / 12
     out[-1] = (5 * g[-1] + 8 * g[-2] - g[-3]) / 12
-    fallback = ~np.isfinite(out)
-    if fallback.any():
-        trapezoid = (g[:-1] + g[1:]) / 2
-        out[fallback] = trapezoid[fallback]
+    missing = ~np.isfinite(out)
+    if missing.any():
+        forward = np.full_like(out, np.nan)
+        forward[:-1] = (5 * g[:-2] + 8 * g[1:-1] - g[2:]) / 12
+        backward = np.full_like(out, np.nan)
+        backward[1:] = (5 * g[2:] + 8 * g[1:-1] - g[:-2]) / 12
+        for fallback in (forward, backward, (g[:-1] + g[1:]) / 2):
+            out[missing] = fallback[missing]
+            missing = ~np.isfinite(out)
     return np.moveaxis(out, 0, axis)
 
 

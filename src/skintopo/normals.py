@@ -38,7 +38,8 @@ class PhotometricStereoResult:
     residual : ndarray, shape (rows, columns), float32
         RMS of I_i - g . s_i over the observations used; NaN where invalid.
     lights_used : ndarray, shape (rows, columns), int16
-        Number of observations used in each pixel's fit.
+        Number of usable observations at each pixel (0 outside the mask); below 3 the pixel
+        is invalid.
     valid : ndarray of bool, shape (rows, columns)
     """
 
@@ -156,13 +157,15 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
         out[pixels] = np.where(good.reshape((-1,) + (1,) * (values.ndim - 1)), values, fill)
         return out.reshape((rows, columns) + values.shape[1:])
 
+    lights_used = np.zeros(rows * columns, dtype=np.int16)
+    lights_used[pixels] = count
     valid = np.zeros(rows * columns, dtype=bool)
     valid[pixels] = good
     return PhotometricStereoResult(
         normals=scatter(normal),
         albedo=scatter(albedo),
         residual=scatter(residual),
-        lights_used=scatter(count, fill=0, dtype=np.int16),
+        lights_used=lights_used.reshape(rows, columns),
         valid=valid.reshape(rows, columns),
     )
 

@@ -1,0 +1,163 @@
+import numpy as np
+import pytest
+import x3pio
+from analytic import SURFACES, nonperiodic_sinusoid, normals_from_slopes, paraboloid_with_wrinkles, rms_error_after_offset
+
+from skintopo.errors import SkinTopoError
+from skintopo.height import (
+    INTEGRATORS,
+    dct_poisson,
+    edge_differences,
+    frankot_chellappa,
+    integrate_normals,
+    masked_least_squares,
+    normals_to_gradients,
+)
+from skintopo.heightmap import HeightMap
+
+SPACING = 10.0
+
+
+@pytest.mark.parametrize("surface", sorted(SURFACES))
+@pytest.mark.parametrize("method", sorted(INTEGRATORS))
+def test_integrator_rms_error_on_analytic_surfaces(surface, method):
+    z, p, q = SURFACES[surface]()
+    estimate = INTEGRATORS[method](p, q, SPACING)
+    relative = rms_error_after_offset(estimate, z) / np.ptp(z)
+    print(f"{method:>18} on {surface:<22}: RMS error {relative:.2e} of the height range ({np.ptp(z):.0f} um)")
+    if method == "frankot-chellappa":
+        assert relative < 0.1  # see the boundary test below: periodic assumption
+    else:
+        assert relative <= 1e-4
+
+
+@pytest.mark.parametrize("surface", sorted(SURFACES))
+def test_default_integration_from_normals_within_1e_4_of_range(surface):
+    z, p, q = SURFACES[surface]()
+    height = integrate_normals(normals_from_slopes(p, q), SPACING)
+    assert isinstance(height, HeightMap) and height.spacing == (SPACING, SPACING)
+    assert rms_error_after_offset(height.z, z) <= 1e-4 * np.ptp(z)
+
+
+def test_frankot_chellappa_boundary_error_is_its_known_weakness():
+    """Periodic Fourier basis on a non-periodic field: the error sits at the border."""
+    z, p, q = nonperiodic_sinusoid()
+    fc = frankot_chellappa(p, q, SPACING)
+    dct = dct_poisson(p, q, SPACING)
+    fc_error = np.abs(fc - fc.mean() - (z - z.mean()))
+    border = np.zeros(z.shape, bool)
+    border[:5], border[-5:], border[:, :5], border[:, -5:] = True, True, True, True
+    rms_fc = rms_error_after_offset(fc, z)
+    rms_dct = rms_error_after_offset(dct, z)
+    print(f"non-periodic sinusoid RMS error: Frankot-Chellappa {rms_fc:.3g} um, DCT-Poisson {rms_dct:.3g} um")
+    assert rms_fc > 1000 * rms_dct
+    assert fc_error[border].mean() > 3 * fc_error[~border].mean()
+
+
+def test_frankot_chellappa_keeps_the_mean_tilt():
+    rows, columns = 40, 60
+    p = np.full((rows, columns), 0.25)
+    q = np.full((rows, columns), -0.1)
+    z = frankot_chellappa(p, q, (2.0, 3.0))
+    x = np.arange(columns) * 3.0
+    y = -np.arange(rows)[:, None] * 2.0
+    np.testing.assert_allclose(z - z.mean(), (0.25 * x - 0.1 * y) - (0.25 * x - 0.1 * y).mean(), atol=1e-9)
+
+
+def test_edge_differences_are_fourth_order():
+    errors = []
+    for n in (20, 40):
+        x = np.linspace(0, 2, n)
+        h = x[1] - x[0]
+        slope = np.cos(3 * x) * 3  # d/dx sin(3x)
+        exact = np.diff(np.sin(3 * x))
+        errors.append(np.abs(edge_differences(slope * h, axis=0) - exact).max())
+    order = np.log2(errors[0] / errors[1])
+    assert order > 4.5  # local error O(h^5), global O(h^4)
+
+
+def test_masked_least_squares_on_a_disc_with_two_regions():
+    z, p, q = paraboloid_with_wrinkles()
+    rows, columns = z.shape
+    r, c = np.mgrid[:rows, :columns]
+    disc = (r - 60) ** 2 + (c - 50) ** 2 < 40**2
+    island = (r - 60) ** 2 + (c - 125) ** 2 < 15**2
+    mask = disc | island
+    estimate = masked_least_squares(p, q, SPACING, mask)
+    assert np.isnan(estimate[~mask]).all() and np.isfinite(estimate[mask]).all()
+    for region in (disc, island):
+        assert rms_error_after_offset(estimate, z, region) <= 1e-4 * np.ptp(z[region])
+        assert abs(estimate[region].mean()) < 1e-9  # each region: mean zero (offset unknowable)
+
+
+def test_auto_integrator_uses_the_mask():
+    z, p, q = paraboloid_with_wrinkles()
+    normals = normals_from_slopes(p, q)
+    normals[:10, :10] = np.nan  # a hole: DCT would fill it with zero slope
+    height = integrate_normals(normals, SPACING)
+    assert not height.mask[:10, :10].any()
+    assert rms_error_after_offset(height.z, z, height.mask) <= 1e-4 * np.ptp(z)
+
+
+def test_normals_to_gradients_sign_convention():
+    # A surface rising to the right (+x) and up (+y) tilts its normal to -x and -y.
+    normals = normals_from_slopes(np.full((2, 2), 0.5), np.full((2, 2), 0.25))
+    assert (normals[..., 0] < 0).all() and (normals[..., 1] < 0).all()
+    p, q = normals_to_gradients(normals)
+    np.testing.assert_allclose(p, 0.5)
+    np.testing.assert_allclose(q, 0.25)
+    # and the height grows to the right and toward the top row
+    z = integrate_normals(normals_from_slopes(np.full((5, 5), 0.5), np.full((5, 5), 0.25)), 1.0).z
+    assert z[0, -1] > z[-1, 0] and z[2, 4] > z[2, 0] and z[0, 2] > z[4, 2]
+
+
+def test_unknown_integrator_is_refused():
+    with pytest.raises(SkinTopoError, match="unknown integrator"):
+        integrate_normals(np.dstack([np.zeros((3, 3)), np.zeros((3, 3)), np.ones((3, 3))]), 1.0, method="magic")
+
+
+class TestHeightMap:
+    def make(self):
+        z = np.arange(12.0).reshape(3, 4) * 7.5
+        z[1, 2] = np.nan
+        return HeightMap(z, (2.0, 3.0))
+
+    def test_immutable(self):
+        height = self.make()
+        with pytest.raises(ValueError):
+            height.z[0, 0] = 1
+        with pytest.raises(AttributeError):
+            height.spacing = (1.0, 1.0)
+        assert not height.mask[1, 2] and height.mask.sum() == 11
+        assert height.extent_um == (6.0, 12.0)
+
+    def test_x3p_round_trip_in_metres(self, tmp_path):
+        height = self.make()
+        height.save(tmp_path / "h.x3p")
+        raw = x3pio.read(tmp_path / "h.x3p").layers[0]
+        np.testing.assert_allclose(raw.z, height.z * 1e-6, equal_nan=True)  # metres in the file
+        np.testing.assert_allclose(raw.spacing[:2], (3e-6, 2e-6))  # (dx, dy)
+        back = HeightMap.load(tmp_path / "h.x3p")
+        np.testing.assert_allclose(back.z, height.z, rtol=1e-12, equal_nan=True)
+        assert back.spacing == pytest.approx(height.spacing)
+        np.testing.assert_array_equal(back.mask, height.mask)
+
+    def test_npy_round_trip_needs_pixel_size(self, tmp_path):
+        height = HeightMap(np.ones((3, 3)), 5.0)
+        height.save(tmp_path / "h.npy")
+        with pytest.raises(SkinTopoError, match="no pixel size"):
+            HeightMap.load(tmp_path / "h.npy")
+        back = HeightMap.load(tmp_path / "h.npy", pixel_um=5.0)
+        np.testing.assert_array_equal(back.z, height.z)
+
+    def test_bad_inputs(self, tmp_path):
+        with pytest.raises(SkinTopoError, match="spacing"):
+            HeightMap(np.ones((2, 2)), -1.0)
+        with pytest.raises(SkinTopoError, match="2-D"):
+            HeightMap(np.ones(3), 1.0)
+        with pytest.raises(SkinTopoError, match="unknown height map format"):
+            HeightMap(np.ones((2, 2)), 1.0).save(tmp_path / "h.bmp")
+        (tmp_path / "bad.x3p").write_bytes(b"not a zip")
+        with pytest.raises(SkinTopoError, match="bad.x3p: not a readable x3p"):
+            HeightMap.load(tmp_path / "bad.x3p")
+        assert not list(tmp_path.glob("*.part"))
