@@ -119,54 +119,64 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     if mask.shape != (rows, columns):
         raise SkinTopoError(f"mask shape {mask.shape} differs from image shape {(rows, columns)}")
 
-    pixels = np.flatnonzero(mask)
-    intensity = images.reshape(m, -1)[:, pixels]  # (m, P)
+    flat_mask = mask.ravel()
+    whole_field = bool(flat_mask.all())
+    intensity = images.reshape(m, -1)
+    if not whole_field:
+        intensity = intensity[:, flat_mask]  # (m, P)
     usable = np.isfinite(intensity)
-    peak = np.where(usable, intensity, -np.inf).max(axis=0)
+    peak = np.fmax.reduce(intensity, axis=0)  # ignores NaN; NaN only if all are NaN
     if shadow_fraction > 0:
         with np.errstate(invalid="ignore"):
-            usable &= intensity > shadow_fraction * peak
-    usable &= peak > 0  # a pixel dark under every light has no normal
-    intensity = np.where(usable, intensity, 0)
-    count = usable.sum(axis=0)
-    g = np.full((pixels.size, 3), np.nan)
+            usable &= intensity > np.float32(shadow_fraction) * peak
+    with np.errstate(invalid="ignore"):
+        usable &= peak > 0  # a pixel dark under every light has no normal
+    intensity = np.where(usable, intensity, np.float32(0))
+    count = np.add.reduce(usable, axis=0, dtype=np.int16)
 
     full = count == m
-    g[full] = (np.linalg.pinv(lights) @ intensity[:, full]).T  # one pseudo-inverse for all of them
+    pinv = np.linalg.pinv(lights).astype(np.float32)
+    if full.all():
+        g = pinv @ intensity  # one pseudo-inverse for every pixel, (3, P)
+    else:
+        g = np.full((3, intensity.shape[1]), np.nan, dtype=np.float32)
+        g[:, full] = pinv @ intensity[:, full]  # one pseudo-inverse for all fully lit pixels
+        partial = ~full & (count >= 3)
+        if partial.any():
+            weights = usable[:, partial].T.astype(np.float64)  # (k, m)
+            upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+            outer = np.stack([lights[:, i] * lights[:, j] for i, j in upper], axis=1)  # (m, 6)
+            solution, det = _solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
+            # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
+            scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
+            solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
+            g[:, partial] = solution.T
 
-    partial = ~full & (count >= 3)
-    if partial.any():
-        weights = usable[:, partial].T.astype(np.float64)  # (k, m)
-        upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
-        outer = np.stack([lights[:, i] * lights[:, j] for i, j in upper], axis=1)  # (m, 6)
-        solution, det = _solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
-        # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
-        scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
-        solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
-        g[partial] = solution
-
-    albedo = np.linalg.norm(g, axis=1)
-    good = np.isfinite(albedo) & (albedo > 0)
-    predicted = np.where(usable, (lights @ np.where(good[:, None], g, 0).T), 0)
+    albedo = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+    with np.errstate(invalid="ignore"):
+        good = albedo > 0  # False for NaN
+    g[:, ~good] = np.nan
+    albedo[~good] = np.nan
+    error = intensity - lights.astype(np.float32) @ g
+    error *= error
+    error[~usable] = 0
     with np.errstate(invalid="ignore", divide="ignore"):
-        residual = np.sqrt(((intensity - predicted) ** 2).sum(axis=0) / count)
-        normal = g / albedo[:, None]
+        residual = np.sqrt(np.add.reduce(error, axis=0) / count)
+        normal = (g / albedo).T  # (P, 3)
 
-    def scatter(values, fill=np.nan, dtype=np.float32):
-        out = np.full((rows * columns,) + values.shape[1:], fill, dtype=dtype)
-        out[pixels] = np.where(good.reshape((-1,) + (1,) * (values.ndim - 1)), values, fill)
+    def to_image(values, fill=np.nan):
+        if whole_field:
+            return values.reshape((rows, columns) + values.shape[1:])
+        out = np.full((rows * columns,) + values.shape[1:], fill, dtype=values.dtype)
+        out[flat_mask] = values
         return out.reshape((rows, columns) + values.shape[1:])
 
-    lights_used = np.zeros(rows * columns, dtype=np.int16)
-    lights_used[pixels] = count
-    valid = np.zeros(rows * columns, dtype=bool)
-    valid[pixels] = good
     return PhotometricStereoResult(
-        normals=scatter(normal),
-        albedo=scatter(albedo),
-        residual=scatter(residual),
-        lights_used=lights_used.reshape(rows, columns),
-        valid=valid.reshape(rows, columns),
+        normals=to_image(normal),
+        albedo=to_image(albedo),
+        residual=to_image(residual),
+        lights_used=to_image(count, fill=0),
+        valid=to_image(good, fill=False),
     )
 
 
