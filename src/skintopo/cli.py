@@ -142,6 +142,54 @@ def cmd_reconstruct(args):
     return 0
 
 
+def cmd_synth(args):
+    from skintopo.synth import PRESETS, Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
+
+    if args.preset not in PRESETS:
+        raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")
+    check_output_folder(args.out, overwrite=args.overwrite)
+    spec = preset_spec(args.preset, size_px=args.size, pixel_um=args.pixel_um)
+    effects = Effects(
+        shadows=not args.no_shadows,
+        interreflection=not args.no_interreflection,
+        bounces=1 if args.single_bounce else None,
+        specular=not args.no_specular,
+        translucency=not args.no_translucency,
+        albedo_variation=not args.no_albedo_variation,
+    )
+    settings = default_settings(skin=args.skin, effects=effects, noise=args.noise, saturate=args.saturate)
+    started = time.perf_counter()
+    surface = make_surface(spec, seed=args.seed)
+    bands, info = simulate_acquisition(surface, settings, seed=args.seed)
+    write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite)
+    _say(
+        args,
+        f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin, {spec.size_px[1]}x{spec.size_px[0]} px "
+        f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s",
+    )
+    return 0
+
+
+def _size(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of pixels") from None
+    if value < 16:
+        raise argparse.ArgumentTypeError(f"field size must be at least 16 pixels, got {value}")
+    return value
+
+
+def _non_negative_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not np.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be zero or positive, got {text}")
+    return value
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="skintopo", description="3D skin topography by multispectral photometric stereo.")
     parser.add_argument("--version", action="version", version=f"skintopo {__version__}")
@@ -156,6 +204,25 @@ def build_parser():
     reconstruct.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     reconstruct.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
     reconstruct.set_defaults(handler=cmd_reconstruct)
+
+    synth = commands.add_parser("synth", help="simulate a skin acquisition with exact ground truth")
+    synth.add_argument("-o", "--out", type=Path, required=True, help="output acquisition folder")
+    synth.add_argument("--preset", default="forehead-moderate", help="flat-microrelief, forehead-low, forehead-moderate (default), forehead-high")
+    synth.add_argument("--skin", choices=["light", "dark"], default="light", help="albedo preset (default light)")
+    synth.add_argument("--size", type=_size, default=256, help="field size in pixels (square, default 256)")
+    synth.add_argument("--pixel-um", type=_positive_float, default=20.0, help="pixel size in micrometres (default 20)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    synth.add_argument("--noise", type=_non_negative_float, default=1.0, help="sensor noise level, 0 = none, 1 = default camera")
+    synth.add_argument("--saturate", action="store_true", help="expose so that specular highlights clip")
+    synth.add_argument("--no-interreflection", action="store_true")
+    synth.add_argument("--single-bounce", action="store_true", help="one interreflection bounce instead of converged radiosity")
+    synth.add_argument("--no-specular", action="store_true")
+    synth.add_argument("--no-translucency", action="store_true")
+    synth.add_argument("--no-shadows", action="store_true")
+    synth.add_argument("--no-albedo-variation", action="store_true")
+    synth.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
+    synth.add_argument("-q", "--quiet", action="store_true")
+    synth.set_defaults(handler=cmd_synth)
     return parser
 
 
