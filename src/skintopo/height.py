@@ -309,36 +309,32 @@ AUTO = "auto"
 DEFAULT_INTEGRATOR = AUTO
 
 
-def integrate_normals(normals, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
-    """Integrate a normal field to a :class:`~skintopo.heightmap.HeightMap`.
+def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
+    """Integrate slopes p = dz/dx, q = dz/dy (x right, y up) to a HeightMap in micrometres.
 
     Parameters
     ----------
-    normals : array_like, shape (rows, columns, 3)
-        Unit normals in the camera frame, NaN where invalid.
+    p, q : array_like (rows, columns)
+        Dimensionless slopes; NaN where unknown.
     spacing : float or (dy, dx)
         Pixel spacing in micrometres.
     mask : array_like of bool, optional
         Pixels to keep (and, for ``least-squares``, to integrate over).
     method : str
-        ``auto`` (default): ``dct-poisson`` when every pixel has a valid normal (a rectangular
+        ``auto`` (default): ``dct-poisson`` when every pixel has valid slopes (a rectangular
         field), else ``least-squares`` over the valid pixels, since filling holes with zero
         slope would bend the surface around them. Or ``dct-poisson``, ``frankot-chellappa``,
         ``least-squares`` by name.
-
-    Returns
-    -------
-    HeightMap
-        Height in micrometres, positive toward the camera.
     """
     if method != AUTO and method not in INTEGRATORS:
         raise SkinTopoError(f"unknown integrator {method!r}; choose from {[AUTO, *sorted(INTEGRATORS)]}")
-    p, q = normals_to_gradients(normals)
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
     valid = np.isfinite(p) & np.isfinite(q)
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != p.shape:
-            raise SkinTopoError(f"mask shape {mask.shape} differs from normals shape {p.shape}")
+            raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {p.shape}")
         valid &= mask
     if method == AUTO:
         method = "dct-poisson" if valid.all() else "least-squares"
@@ -347,3 +343,11 @@ def integrate_normals(normals, spacing, *, mask=None, method=DEFAULT_INTEGRATOR)
     else:
         z = INTEGRATORS[method](p, q, spacing)
     return HeightMap(z, spacing, valid)
+
+
+def integrate_normals(normals, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
+    """Integrate a normal field (unit vectors, camera frame, NaN where invalid) to a
+    :class:`~skintopo.heightmap.HeightMap`: :func:`normals_to_gradients` then
+    :func:`integrate_slopes` (same options)."""
+    p, q = normals_to_gradients(normals)
+    return integrate_slopes(p, q, spacing, mask=mask, method=method)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skintopo.acquisition import check_light_directions
+from skintopo._linalg import solve_symmetric_3x3
 from skintopo.errors import SkinTopoError
 
 DEFAULT_SHADOW_FRACTION = 0.05
@@ -48,33 +49,6 @@ class PhotometricStereoResult:
     residual: np.ndarray
     lights_used: np.ndarray
     valid: np.ndarray
-
-
-def _solve_symmetric_3x3(a, b):
-    """Solve a[k] x[k] = b[k] for many symmetric 3 x 3 systems by the adjugate (vectorised).
-
-    ``a`` has shape (k, 6) holding (a00, a01, a02, a11, a12, a22); ``b`` (k, 3).
-    Returns x (k, 3) and the determinant (k,). NumPy's batched solver raises on the first
-    singular matrix, so the closed form is used to let degenerate pixels be flagged instead.
-    """
-    a00, a01, a02, a11, a12, a22 = a.T
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = np.stack(
-            [
-                c00 * b[:, 0] + c01 * b[:, 1] + c02 * b[:, 2],
-                c01 * b[:, 0] + c11 * b[:, 1] + c12 * b[:, 2],
-                c02 * b[:, 0] + c12 * b[:, 1] + c22 * b[:, 2],
-            ],
-            axis=1,
-        ) / det[:, None]
-    return x, det
 
 
 def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION):
@@ -146,7 +120,7 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
             weights = usable[:, partial].T.astype(np.float64)  # (k, m)
             upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
             outer = np.stack([lights[:, i] * lights[:, j] for i, j in upper], axis=1)  # (m, 6)
-            solution, det = _solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
+            solution, det = solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
             # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
             scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
             solution[~(np.abs(det) > 1e-6 * scale)] = np.nan

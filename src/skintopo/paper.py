@@ -1,0 +1,144 @@
+"""The paper's Tables 1 and 2 and Figures 3 and 5, reproduced on simulated subjects.
+
+Four subjects, as in the paper two light-skinned (1, 4) and two darker-skinned (2, 3), in
+different wrinkle states. For each: simulate the acquisition (all effects on), reconstruct
+red, green, blue and white, run the spectral correction (the paper's algorithm and the
+feathered variant), and evaluate every height map against the ground truth.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from skintopo.correction import spectral_correction
+from skintopo.evaluation import cross_section_line, evaluate_height
+from skintopo.filters import extract_profile
+from skintopo.height import integrate_normals
+from skintopo.normals import photometric_stereo
+from skintopo.segmentation import segmentation_quality
+from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+
+
+@dataclass(frozen=True)
+class Subject:
+    number: int
+    skin: str
+    preset: str
+    seed: int
+
+
+SUBJECTS = (
+    Subject(1, "light", "forehead-high", 11),
+    Subject(2, "dark", "forehead-moderate", 12),
+    Subject(3, "dark", "forehead-low", 13),
+    Subject(4, "light", "forehead-moderate", 14),
+)
+COLUMNS = ("red", "green", "blue", "white", "algorithm", "algorithm-feathered")
+
+
+def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0):
+    """Simulate, reconstruct, correct and evaluate one subject. Returns a dict."""
+    started = time.perf_counter()
+    surface = make_surface(preset_spec(subject.preset, size_px=size_px, pixel_um=pixel_um), seed=subject.seed)
+    bands, _ = simulate_acquisition(surface, default_settings(skin=subject.skin), seed=subject.seed + 1000)
+    normals, heights = {}, {}
+    for band in ("red", "green", "blue", "white"):
+        stereo = photometric_stereo(*bands[band])
+        normals[band] = stereo.normals
+        heights[band] = integrate_normals(stereo.normals, pixel_um, mask=stereo.valid)
+    paper = spectral_correction(normals, pixel_um, method="paper")
+    heights["algorithm"] = paper.height
+    heights["algorithm-feathered"] = spectral_correction(normals, pixel_um, method="feathered", segmentation=paper.segmentation).height
+    evaluations = {
+        name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+        for name, height in heights.items()
+    }
+    return {
+        "subject": subject,
+        "surface": surface,
+        "heights": heights,
+        "evaluations": evaluations,
+        "segmentation": segmentation_quality(paper.segmentation.mask, surface.wrinkle_labels > 0),
+        "wrinkles_found": paper.segmentation.count,
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def _table(results, key):
+    return [[f"Subject {r['subject'].number}"] + [r["evaluations"][c][key] for c in COLUMNS] for r in results]
+
+
+def _write_table(folder, name, title, rows, digits):
+    header = ["", *COLUMNS]
+    with open(folder / f"{name}.csv", "w", newline="", encoding="utf-8") as stream:
+        writer = csv.writer(stream)
+        writer.writerow(header)
+        writer.writerows(rows)
+    lines = [f"**{title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        lines.append("| " + " | ".join([row[0]] + [f"{v:.{digits}f}" for v in row[1:]]) + " |")
+    (folder / f"{name}.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return "\n".join(lines)
+
+
+def _figures(folder, result):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    surface = result["surface"]
+    depths = result["evaluations"]["red"]["wrinkle_max_depth_true_um"]
+    deepest = int(np.nanargmax(depths)) + 1
+    start, end = cross_section_line(surface.wrinkle_labels, deepest, surface.height.spacing)
+
+    def profile(height):
+        distance, z = extract_profile(height, start, end, width_um=100.0)
+        return distance / 1000.0, z - np.nanmedian(z)
+
+    colours = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue", "white": "0.4"}
+    distance, truth = profile(surface.height)
+    figure, axes = plt.subplots(figsize=(7, 4))
+    axes.plot(distance, truth, "k--", label="ground truth")
+    for band, colour in colours.items():
+        axes.plot(distance, profile(result["heights"][band])[1], color=colour, label=band)
+    axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"Subject {result['subject'].number}: cross-section per band")
+    axes.legend()
+    figure.tight_layout()
+    figure.savefig(folder / "figure3_cross_section_per_band.png", dpi=120)
+    plt.close(figure)
+
+    figure, axes = plt.subplots(figsize=(7, 4))
+    axes.plot(distance, truth, "k--", label="ground truth")
+    axes.plot(distance, profile(result["heights"]["red"])[1], color="tab:red", alpha=0.5, label="red")
+    axes.plot(distance, profile(result["heights"]["algorithm"])[1], color="tab:purple", label="algorithm")
+    axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"Subject {result['subject'].number}: algorithm vs ground truth")
+    axes.legend()
+    figure.tight_layout()
+    figure.savefig(folder / "figure5_algorithm_vs_truth.png", dpi=120)
+    plt.close(figure)
+
+
+def paper_tables(folder, *, size_px=256, pixel_um=20.0, progress=None):
+    """Run all subjects and write Table 1, Table 2, the wrinkle-depth table and the figures
+    into ``folder``. Returns the per-subject results."""
+    results = []
+    for subject in SUBJECTS:
+        results.append(run_subject(subject, size_px=size_px, pixel_um=pixel_um))
+        if progress:
+            progress(subject)
+    text = [
+        _write_table(folder, "table1_rms_height_error", "Table 1. RMS height error (um)", _table(results, "rms_height_error_um"), 3),
+        _write_table(folder, "table2_l2_normal_error", "Table 2. L2-norm normal error", _table(results, "l2_normal_error"), 4),
+    ]
+    depth_rows = [
+        [f"Subject {r['subject'].number}"] + [float(np.mean(r["evaluations"][c]["wrinkle_depth_error_relative"])) * 100 for c in COLUMNS]
+        for r in results
+    ]
+    text.append(_write_table(folder, "table_wrinkle_depth_error", "Mean relative error of wrinkle maximum depth (%)", depth_rows, 1))
+    _figures(folder, results[0])
+    return results, "\n\n".join(text)
