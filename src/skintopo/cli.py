@@ -20,8 +20,9 @@ from skintopo.acquisition import BANDS, DEFAULT_SATURATION, MANIFEST_NAME, load_
 from skintopo.errors import SkinTopoError
 from skintopo.height import AUTO, DEFAULT_INTEGRATOR, INTEGRATORS
 from skintopo.normals import DEFAULT_SHADOW_FRACTION
-from skintopo.outputs import check_output_folder, staged_output_folder, write_json
+from skintopo.outputs import check_output_folder, staged_output_folder, write_json, write_json_atomic, write_label_image
 from skintopo.reconstruct import band_statistics, reconstruct_band
+from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
 
 
 def _positive_float(text):
@@ -89,45 +90,57 @@ def _load(args, bands):
     return acquisition
 
 
+def _acquisition_summary(acquisition):
+    return {
+        "name": acquisition.source.name,
+        "sha256": _acquisition_fingerprint(acquisition),
+        "layout": acquisition.layout,
+        "shape": list(acquisition.shape),
+        "pixel_um": acquisition.pixel_um,
+        "pixel_um_assumed": acquisition.pixel_um_assumed,
+        "bands": {b: len(acquisition.bands[b].files) for b in acquisition.bands},
+    }
+
+
+def _summary(command, args, acquisition=None, **extra):
+    summary = {"skintopo_version": __version__, "command": command, "python": platform.python_version()}
+    if acquisition is not None:
+        summary["acquisition"] = _acquisition_summary(acquisition)
+    summary.update(extra)
+    return summary
+
+
+def _reconstruct_all(args, acquisition):
+    return {
+        band: reconstruct_band(acquisition, band, integrator=args.integrator, shadow_fraction=args.shadow_fraction)
+        for band in _progress(acquisition.bands, quiet=args.quiet, desc="reconstruct")
+    }
+
+
+def _write_band_outputs(folder, result):
+    folder.mkdir()
+    np.save(folder / "normals.npy", result.stereo.normals.astype(np.float32))
+    np.save(folder / "albedo.npy", result.stereo.albedo.astype(np.float32))
+    result.height.save(folder / "height.x3p")
+
+
 def cmd_reconstruct(args):
     bands = None if args.band == "all" else [args.band]
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
     acquisition = _load(args, bands)
     seconds_load = time.perf_counter() - started
-    results = {}
-    for band in _progress(acquisition.bands, quiet=args.quiet, desc="reconstruct"):
-        results[band] = reconstruct_band(acquisition, band, integrator=args.integrator, shadow_fraction=args.shadow_fraction)
-
-    summary = {
-        "skintopo_version": __version__,
-        "command": "reconstruct",
-        "python": platform.python_version(),
-        "acquisition": {
-            "name": acquisition.source.name,
-            "sha256": _acquisition_fingerprint(acquisition),
-            "layout": acquisition.layout,
-            "shape": list(acquisition.shape),
-            "pixel_um": acquisition.pixel_um,
-            "pixel_um_assumed": acquisition.pixel_um_assumed,
-            "bands": {b: len(acquisition.bands[b].files) for b in acquisition.bands},
-        },
-        "options": {
-            "integrator": args.integrator,
-            "saturation": args.saturation,
-            "shadow_fraction": args.shadow_fraction,
-        },
-        "units": {"height": "um", "normals": "unit vector, camera frame (x right, y up, z toward camera)"},
-        "seconds_load": seconds_load,
-        "bands": {band: band_statistics(result) for band, result in results.items()},
-    }
+    results = _reconstruct_all(args, acquisition)
+    summary = _summary(
+        "reconstruct", args, acquisition,
+        options={"integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction},
+        units={"height": "um", "normals": "unit vector, camera frame (x right, y up, z toward camera)"},
+        seconds_load=seconds_load,
+        bands={band: band_statistics(result) for band, result in results.items()},
+    )
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition]) as staging:
         for band, result in results.items():
-            folder = staging / band
-            folder.mkdir()
-            np.save(folder / "normals.npy", result.stereo.normals.astype(np.float32))
-            np.save(folder / "albedo.npy", result.stereo.albedo.astype(np.float32))
-            result.height.save(folder / "height.x3p")
+            _write_band_outputs(staging / band, result)
         summary["seconds_total"] = time.perf_counter() - started
         write_json(staging / "summary.json", summary)
 
@@ -139,6 +152,145 @@ def cmd_reconstruct(args):
                 f"{stats['mean_residual']:9.4f} {stats['height_range_um']:9.2f}"
             )
         print(f"wrote {Path(args.out).resolve()}")
+    return 0
+
+
+def _segmentation_options(args):
+    return {
+        "cutoff_um": args.cutoff_um,
+        "short_cutoff_um": args.short_cutoff_um,
+        "min_depth_um": args.min_depth_um,
+        "min_length_um": args.min_length_um,
+    }
+
+
+def cmd_correct(args):
+    from skintopo.correction import REQUIRED_BANDS, spectral_correction
+
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
+    started = time.perf_counter()
+    acquisition = _load(args, None)
+    missing = [b for b in REQUIRED_BANDS if b not in acquisition.bands]
+    if missing:
+        raise SkinTopoError(
+            f"{args.acquisition}: the spectral correction needs red, green and blue images; missing {missing} "
+            f"(the acquisition has {sorted(acquisition.bands)})"
+        )
+    results = _reconstruct_all(args, acquisition)
+    correction = spectral_correction(
+        {band: results[band].stereo.normals for band in REQUIRED_BANDS}, acquisition.pixel_um,
+        method=args.method, integrator=args.integrator, mask=acquisition.mask, **_segmentation_options(args),
+    )
+    summary = _summary(
+        "correct", args, acquisition,
+        options={
+            "integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction,
+            "method": args.method, "segmentation": correction.segmentation.parameters,
+        },
+        wrinkles_found=correction.segmentation.count,
+        wrinkle_area_fraction=float(correction.segmentation.mask.mean()),
+        bands={band: band_statistics(result) for band, result in results.items()},
+    )
+    with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition]) as staging:
+        correction.height.save(staging / "height.x3p")
+        write_label_image(staging / "wrinkles.png", correction.segmentation.labels)
+        for band, result in results.items():
+            _write_band_outputs(staging / band, result)
+        summary["seconds_total"] = time.perf_counter() - started
+        write_json(staging / "summary.json", summary)
+    _say(args, f"{correction.segmentation.count} wrinkle(s) segmented; corrected height ({args.method}) in {Path(args.out).resolve() / 'height.x3p'}")
+    return 0
+
+
+def cmd_evaluate(args):
+    from skintopo.evaluation import evaluate_height
+    from skintopo.heightmap import HeightMap
+
+    output = Path(args.out)
+    if output.exists() and not args.overwrite:
+        raise SkinTopoError(f"{output}: exists; use --overwrite to replace it")
+    result = HeightMap.load(args.result, pixel_um=args.pixel_um)
+    reference = HeightMap.load(args.reference, pixel_um=args.pixel_um)
+    labels = None
+    if args.wrinkles is not None:
+        from skintopo.acquisition import read_image
+
+        labels = read_image(args.wrinkles)
+        if labels.shape != reference.shape:
+            raise SkinTopoError(f"{args.wrinkles}: wrinkle image size {labels.shape} differs from the reference {reference.shape}")
+    report = evaluate_height(result, reference, wrinkle_labels=labels, register=not args.no_register)
+    report = {"result": Path(args.result).name, "reference": Path(args.reference).name, "units": "um, degrees", **report}
+    write_json_atomic(output, report)
+    if not args.quiet:
+        for key, value in report.items():
+            if isinstance(value, float):
+                print(f"{key:<34} {value:12.4f}")
+            elif isinstance(value, list) and value and isinstance(value[0], float):
+                print(f"{key:<34} " + " ".join(f"{v:.3f}" for v in value))
+        print(f"wrote {output.resolve()}")
+    return 0
+
+
+def cmd_paper_tables(args):
+    from skintopo.paper import paper_tables
+
+    check_output_folder(args.out, overwrite=args.overwrite)
+    with staged_output_folder(args.out, overwrite=args.overwrite) as staging:
+        _, text = paper_tables(staging, size_px=args.size, pixel_um=args.pixel_um,
+                               progress=None if args.quiet else lambda s: print(f"subject {s.number} done", file=sys.stderr))
+    _say(args, text + f"\n\nwrote {Path(args.out).resolve()}")
+    return 0
+
+
+def cmd_demo(args):
+    from skintopo.correction import spectral_correction
+    from skintopo.evaluation import evaluate_height
+    from skintopo.segmentation import segmentation_quality
+    from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
+
+    check_output_folder(args.out, overwrite=args.overwrite)
+    started = time.perf_counter()
+    with staged_output_folder(args.out, overwrite=args.overwrite) as staging:
+        spec = preset_spec(args.preset, size_px=args.size, pixel_um=20.0)
+        surface = make_surface(spec, seed=args.seed)
+        settings = default_settings(skin=args.skin)
+        bands, info = simulate_acquisition(surface, settings, seed=args.seed)
+        write_synthetic_acquisition(staging / "acquisition", surface, bands, settings=settings, seed=args.seed, info=info)
+        _say(args, f"simulated {args.preset}, {args.skin} skin, {args.size}x{args.size} px at 20 um ({time.perf_counter() - started:.1f} s)")
+        args.acquisition, args.pixel_um, args.saturation = staging / "acquisition", None, DEFAULT_SATURATION
+        args.shadow_fraction, args.integrator = DEFAULT_SHADOW_FRACTION, DEFAULT_INTEGRATOR
+        acquisition = _load(args, None)
+        results = _reconstruct_all(args, acquisition)
+        correction = spectral_correction({b: results[b].stereo.normals for b in ("red", "green", "blue")}, acquisition.pixel_um)
+        heights = {band: result.height for band, result in results.items()} | {"algorithm": correction.height}
+        evaluations = {
+            name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+            for name, height in heights.items()
+        }
+        result_folder = staging / "result"
+        result_folder.mkdir()
+        correction.height.save(result_folder / "height.x3p")
+        write_label_image(result_folder / "wrinkles.png", correction.segmentation.labels)
+        for band, result in results.items():
+            _write_band_outputs(result_folder / band, result)
+        summary = _summary(
+            "demo", args, acquisition, preset=args.preset, skin=args.skin, seed=args.seed,
+            segmentation=segmentation_quality(correction.segmentation.mask, surface.wrinkle_labels > 0)
+            | {"wrinkles_found": correction.segmentation.count, "wrinkles_true": len(spec.wrinkles)},
+            evaluation=evaluations,
+        )
+        summary["seconds_total"] = time.perf_counter() - started
+        write_json(staging / "summary.json", summary)
+    if not args.quiet:
+        print(f"\n{'height map':<10} {'RMS error um':>12} {'in wrinkles':>12} {'L2 normal':>10} {'depth error %':>14}")
+        for name, e in evaluations.items():
+            print(
+                f"{name:<10} {e['rms_height_error_um']:12.2f} {e['rms_height_error_in_wrinkles_um']:12.2f} "
+                f"{e['l2_normal_error']:10.4f} {100 * np.mean(e['wrinkle_depth_error_relative']):14.1f}"
+            )
+        seg = summary["segmentation"]
+        print(f"\nwrinkles segmented: {seg['wrinkles_found']} of {seg['wrinkles_true']} (IoU {seg['iou']:.2f} with the true half-depth regions)")
+        print(f"wrote {Path(args.out).resolve()} in {summary['seconds_total']:.1f} s")
     return 0
 
 
@@ -204,6 +356,48 @@ def build_parser():
     reconstruct.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
     reconstruct.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
     reconstruct.set_defaults(handler=cmd_reconstruct)
+
+    correct = commands.add_parser("correct", help="the paper's method: per-band reconstruction, wrinkle segmentation, spectral correction")
+    _add_acquisition_options(correct)
+    correct.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    correct.add_argument("--method", choices=["paper", "feathered"], default="paper", help="correction variant (default paper)")
+    correct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR)
+    correct.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM, help=f"lambda_c of the segmentation band-pass (default {DEFAULT_CUTOFF_UM:g})")
+    correct.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM, help=f"lambda_s (default {DEFAULT_SHORT_CUTOFF_UM:g})")
+    correct.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM, help=f"shallowest wrinkle (default {DEFAULT_MIN_DEPTH_UM:g})")
+    correct.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM, help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
+    correct.add_argument("--overwrite", action="store_true")
+    correct.add_argument("-q", "--quiet", action="store_true")
+    correct.set_defaults(handler=cmd_correct)
+
+    evaluate = commands.add_parser("evaluate", help="accuracy of a height map against a reference (ground truth, replica)")
+    evaluate.add_argument("result", type=Path, help="height map (.x3p or .npy)")
+    evaluate.add_argument("reference", type=Path, help="reference height map (.x3p or .npy)")
+    evaluate.add_argument("-o", "--out", type=Path, default=Path("evaluation.json"), help="JSON file to write (default evaluation.json)")
+    evaluate.add_argument("--wrinkles", type=Path, help="wrinkle label image (ground_truth/wrinkles.png) for in-wrinkle errors and depths")
+    evaluate.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
+    evaluate.add_argument("--no-register", action="store_true", help="do not search for a sub-pixel translation")
+    evaluate.add_argument("--overwrite", action="store_true")
+    evaluate.add_argument("-q", "--quiet", action="store_true")
+    evaluate.set_defaults(handler=cmd_evaluate)
+
+    demo = commands.add_parser("demo", help="simulate a forehead capture, reconstruct and correct it, compare with the truth")
+    demo.add_argument("-o", "--out", type=Path, default=Path("demo-out"), help="output folder (default demo-out)")
+    demo.add_argument("--preset", default="forehead-moderate", choices=["forehead-low", "forehead-moderate", "forehead-high"])
+    demo.add_argument("--skin", choices=["light", "dark"], default="light")
+    demo.add_argument("--size", type=_size, default=256, help="field size in pixels at 20 um (default 256)")
+    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--overwrite", action="store_true")
+    demo.add_argument("-q", "--quiet", action="store_true")
+    demo.set_defaults(handler=cmd_demo)
+
+    tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
+    tables.add_argument("-o", "--out", type=Path, required=True)
+    tables.add_argument("--size", type=_size, default=256, help="field size in pixels (default 256)")
+    tables.add_argument("--pixel-um", type=_positive_float, default=20.0)
+    tables.add_argument("--overwrite", action="store_true")
+    tables.add_argument("-q", "--quiet", action="store_true")
+    tables.set_defaults(handler=cmd_paper_tables)
 
     synth = commands.add_parser("synth", help="simulate a skin acquisition with exact ground truth")
     synth.add_argument("-o", "--out", type=Path, required=True, help="output acquisition folder")

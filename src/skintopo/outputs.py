@@ -75,3 +75,28 @@ def _json_default(value):
 def write_json(path, data):
     """Write ``data`` as indented JSON (NumPy scalars and arrays converted)."""
     Path(path).write_text(json.dumps(data, indent=2, default=_json_default, allow_nan=True) + "\n", encoding="utf-8")
+
+
+def write_json_atomic(path, data):
+    """Write JSON to a temporary file beside ``path`` and rename it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+    os.close(handle)
+    try:
+        write_json(tmp, data)
+        os.chmod(tmp, 0o666 & ~current_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_label_image(path, labels):
+    """Write a label image (0 = background, i = object i) as an 8- or 16-bit PNG."""
+    import cv2
+
+    labels = np.asarray(labels)
+    if labels.max(initial=0) > 65535:
+        raise SkinTopoError(f"{path}: more than 65535 labels cannot be stored in a PNG")
+    cv2.imwrite(str(path), labels.astype(np.uint8 if labels.max(initial=0) <= 255 else np.uint16))

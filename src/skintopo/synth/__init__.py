@@ -28,12 +28,11 @@ import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from skintopo.acquisition import write_acquisition
 from skintopo.errors import SkinTopoError
-from skintopo.outputs import staged_output_folder
+from skintopo.outputs import staged_output_folder, write_label_image
 from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, make_surface
 
@@ -129,7 +128,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
         truth.mkdir()
         surface.height.save(truth / "height.x3p")
         np.save(truth / "normals.npy", surface.normals.astype(np.float32))
-        cv2.imwrite(str(truth / "wrinkles.png"), surface.wrinkle_labels.astype(np.uint16 if surface.wrinkle_labels.max() > 255 else np.uint8))
+        write_label_image(truth / "wrinkles.png", surface.wrinkle_labels)
         description = {
             "units": {"lengths": "um", "curvature": "1/mm", "angles": "degrees"},
             "seed": seed,
