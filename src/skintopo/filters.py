@@ -186,3 +186,36 @@ def extract_profile(height: HeightMap, start_um, end_um, width_um=0.0):
     z = np.where(height.mask, height.z, np.nan)
     sampled = scipy.ndimage.map_coordinates(z, [y.ravel() / dy, x.ravel() / dx], order=1, mode="nearest").reshape(x.shape)
     return t * length, sampled.mean(axis=1)
+
+
+def profile_gaussian_filter(z, spacing_um, cutoff_um):
+    """Low-pass of the ISO 16610-21 Gaussian profile filter, first-order regression at the ends.
+
+    Same weighting function and transmission as :func:`areal_gaussian_filter`, in one
+    dimension: at every point a weighted least-squares line (Gaussian weights over the valid
+    points) gives the mean line, so a straight profile passes unchanged up to its ends.
+    NaN points are left out.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    if z.ndim != 1:
+        raise SkinTopoError(f"expected a 1-D profile, got shape {z.shape}")
+    if not (cutoff_um > 0):
+        raise SkinTopoError(f"cut-off must be positive, got {cutoff_um} um")
+    valid = np.isfinite(z)
+    sigma = gaussian_sigma_px(cutoff_um, spacing_um)
+
+    def smooth(values):
+        return scipy.ndimage.gaussian_filter1d(values, sigma, mode="constant", truncate=_TRUNCATE)
+
+    weight = valid.astype(float)
+    values = np.where(valid, z, 0.0)
+    x = np.arange(z.size) - z.size / 2
+    s0, sx, sxx = smooth(weight), smooth(weight * x), smooth(weight * x * x)
+    sz, sxz = smooth(values), smooth(values * x)
+    mx, mxx, mxz = sx - x * s0, sxx - 2 * x * sx + x * x * s0, sxz - x * sz
+    det = s0 * mxx - mx * mx
+    with np.errstate(invalid="ignore", divide="ignore"):
+        first = (sz * mxx - mx * mxz) / det
+        zeroth = sz / s0
+        low = np.where(det > 1e-3 * s0**2 * sigma**2, first, zeroth)
+    return np.where(s0 > 1e-6 * s0.max(), low, np.nan)

@@ -1,0 +1,95 @@
+"""Surface texture parameters of height maps: ISO 21920-2 profile (R) parameters, ISO
+25178-2 areal height, hybrid, spatial, functional and volume parameters, and fractal
+dimension by four classic estimators (Gwyddion's definitions) plus a physically scaled one.
+
+:func:`measure_texture` computes the whole areal set in one call and returns a list of
+:class:`Parameter` (name, value, unit, standard reference).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skintopo.errors import SkinTopoError
+from skintopo.filters import level
+from skintopo.heightmap import HeightMap
+from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
+from skintopo.texture.fractal import METHODS as FRACTAL_METHODS
+from skintopo.texture.fractal import fractal_dimension
+from skintopo.texture.profile import PROFILE_UNITS, line_profile_parameters, profile_parameters
+
+__all__ = ["Parameter", "measure_texture", "profile_parameters", "line_profile_parameters", "fractal_dimension", "PROFILE_UNITS"]
+
+_UNITS = {
+    "Sa": "um", "Sq": "um", "Ssk": "", "Sku": "", "Sp": "um", "Sv": "um", "Sz": "um",
+    "Sdq": "", "Sdr": "%", "Sal": "um", "Str": "", "Std": "deg",
+    "Sk": "um", "Spk": "um", "Svk": "um", "Smr1": "%", "Smr2": "%", "Sxp": "um",
+    "Vmp": "um3/um2", "Vmc": "um3/um2", "Vvc": "um3/um2", "Vvv": "um3/um2",
+}
+_REFERENCES = {
+    **{n: "ISO 25178-2 4.1 (height)" for n in ("Sa", "Sq", "Ssk", "Sku", "Sp", "Sv", "Sz")},
+    **{n: "ISO 25178-2 4.4 (hybrid)" for n in ("Sdq", "Sdr")},
+    **{n: "ISO 25178-2 4.3 (spatial), s = 0.2" for n in ("Sal", "Str", "Std")},
+    **{n: "ISO 25178-2 Annex B / ISO 13565-2 (functional)" for n in ("Sk", "Spk", "Svk", "Smr1", "Smr2")},
+    "Sxp": "ISO 25178-2 4.5 (functional), p = 2.5 %, q = 50 %",
+}
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One measured parameter: name, value, unit (um, %, deg, um3/um2 = ml/m2, '' = none),
+    and the standard clause or method it follows."""
+
+    name: str
+    value: float
+    unit: str
+    reference: str
+
+
+def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS):
+    """All areal parameters and fractal dimensions of a height map, in one call.
+
+    Parameters
+    ----------
+    height : HeightMap
+        Micrometres.
+    level_order : int or None
+        F-operator: the least-squares polynomial form removed first (1 = plane, the
+        default; None = none).
+    p, q : float
+        Material ratios (%) of the volume parameters (ISO defaults 10 and 80).
+    fractal_methods : sequence of str
+        Estimators to run (default the four Gwyddion ones).
+
+    Returns
+    -------
+    list of Parameter
+    """
+    if not height.mask.any():
+        raise SkinTopoError("the height map has no valid points")
+    surface = level(height, level_order) if level_order is not None else height
+    values = {}
+    values.update(height_parameters(surface))
+    values.update(hybrid_parameters(surface))
+    values.update(spatial_parameters(surface))
+    values.update(functional_parameters(surface, p=p, q=q))
+    references = dict(_REFERENCES)
+    for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
+        references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
+    parameters = [Parameter(name, float(value), _UNITS[name], references[name]) for name, value in values.items()]
+    for method in fractal_methods:
+        result = fractal_dimension(surface, method)
+        parameters.append(Parameter(f"D_{method}", result.dimension, "", f"fractal dimension, {method} (Gwyddion definition)" if method in FRACTAL_METHODS else f"fractal dimension, {method}"))
+    return parameters
+
+
+def parameters_by_name(parameters):
+    """{name: value} of a list of :class:`Parameter`."""
+    return {p.name: p.value for p in parameters}
+
+
+def finite_or_none(value):
+    """JSON-friendly value: None for NaN."""
+    return None if value is None or (isinstance(value, float) and not np.isfinite(value)) else value
