@@ -294,6 +294,82 @@ def cmd_demo(args):
     return 0
 
 
+def _parse_region(text):
+    try:
+        name, box = text.split("=", 1)
+        x0, y0, x1, y1 = (float(v) for v in box.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"region {text!r} must look like NAME=x0,y0,x1,y1 (micrometres)") from None
+    if not (x1 > x0 and y1 > y0):
+        raise argparse.ArgumentTypeError(f"region {text!r}: need x1 > x0 and y1 > y0")
+    return name, (x0, y0, x1, y1)
+
+
+def _crop(height, box, name):
+    from skintopo.heightmap import HeightMap
+
+    dy, dx = height.spacing
+    x0, y0, x1, y1 = box
+    c0, c1 = int(round(x0 / dx)), int(round(x1 / dx)) + 1
+    r0, r1 = int(round(y0 / dy)), int(round(y1 / dy)) + 1
+    rows, columns = height.shape
+    if c0 < 0 or r0 < 0 or c1 > columns or r1 > rows:
+        raise SkinTopoError(f"region {name!r} ({box} um) lies outside the map ({(columns - 1) * dx:g} x {(rows - 1) * dy:g} um)")
+    return HeightMap(height.z[r0:r1, c0:c1], height.spacing, height.mask[r0:r1, c0:c1])
+
+
+def _measured_height(args):
+    """The height map to measure: a height file as it is, or an acquisition run through the
+    paper's method (corrected height when red, green and blue are present, else white or
+    the only band)."""
+    from skintopo.heightmap import HeightMap
+
+    path = Path(args.input)
+    if path.is_file():
+        return HeightMap.load(path, pixel_um=args.pixel_um), {"input": path.name, "kind": "height map"}
+    from skintopo.correction import REQUIRED_BANDS, spectral_correction
+
+    args.acquisition = path
+    acquisition = _load(args, None)
+    results = _reconstruct_all(args, acquisition)
+    if all(b in results for b in REQUIRED_BANDS):
+        correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um, mask=acquisition.mask)
+        return correction.height, {"input": path.name, "kind": "acquisition", "height": "spectral correction (paper)", "wrinkles_found": correction.segmentation.count}
+    band = "white" if "white" in results else next(iter(results))
+    return results[band].height, {"input": path.name, "kind": "acquisition", "height": f"{band} band"}
+
+
+def cmd_measure(args):
+    import csv
+
+    from skintopo.texture import finite_or_none, measure_texture
+
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
+    started = time.perf_counter()
+    height, source = _measured_height(args)
+    regions = {"field": height} | {name: _crop(height, box, name) for name, box in args.region}
+    measured = {name: measure_texture(region, level_order=args.level, p=args.p, q=args.q) for name, region in regions.items()}
+    rows = [
+        {"region": name, "name": p.name, "value": finite_or_none(p.value), "unit": p.unit, "reference": p.reference}
+        for name, parameters in measured.items()
+        for p in parameters
+    ]
+    summary = _summary("measure", args, source=source, options={"level_order": args.level, "p": args.p, "q": args.q}, units="um unless stated")
+    with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
+        write_json(staging / "parameters.json", {"summary": summary, "parameters": rows})
+        with open(staging / "parameters.csv", "w", newline="", encoding="utf-8") as stream:
+            writer = csv.DictWriter(stream, fieldnames=["region", "name", "value", "unit", "reference"])
+            writer.writeheader()
+            writer.writerows(rows)
+    if not args.quiet:
+        print(f"{'region':<10} {'parameter':<24} {'value':>14} unit")
+        for row in rows:
+            value = "NaN" if row["value"] is None else f"{row['value']:14.5g}"
+            print(f"{row['region']:<10} {row['name']:<24} {value:>14} {row['unit']}")
+        print(f"wrote {Path(args.out).resolve()} in {time.perf_counter() - started:.1f} s")
+    return 0
+
+
 def cmd_synth(args):
     from skintopo.synth import PRESETS, Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 
@@ -390,6 +466,18 @@ def build_parser():
     demo.add_argument("--overwrite", action="store_true")
     demo.add_argument("-q", "--quiet", action="store_true")
     demo.set_defaults(handler=cmd_demo)
+
+    measure = commands.add_parser("measure", help="surface texture (ISO 25178-2), volume and fractal parameters of a height map or acquisition")
+    measure.add_argument("input", type=Path, help="height map (.x3p, .npy) or acquisition folder")
+    measure.add_argument("-o", "--out", type=Path, required=True, help="output folder (parameters.json, parameters.csv)")
+    measure.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps and DiLiGenT folders")
+    measure.add_argument("--level", type=int, default=1, help="order of the least-squares form removed first (default 1: plane)")
+    measure.add_argument("--p", type=float, default=10.0, help="material ratio p of Vmp/Vmc/Vvc (default 10 %%)")
+    measure.add_argument("--q", type=float, default=80.0, help="material ratio q of Vmc/Vvc/Vvv (default 80 %%)")
+    measure.add_argument("--region", type=_parse_region, action="append", default=[], help="extra region NAME=x0,y0,x1,y1 in um (repeatable)")
+    measure.add_argument("--overwrite", action="store_true")
+    measure.add_argument("-q", "--quiet", action="store_true")
+    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION, integrator=DEFAULT_INTEGRATOR)
 
     tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
     tables.add_argument("-o", "--out", type=Path, required=True)

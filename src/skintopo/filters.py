@@ -138,7 +138,9 @@ def polynomial_form(z, spacing, order=1, mask=None):
     v = np.linspace(-1, 1, rows)[:, None] * np.ones((1, columns))
     u = np.ones((rows, 1)) * np.linspace(-1, 1, columns)[None, :]
     basis = np.stack([u**i * v**j for i in range(order + 1) for j in range(order + 1 - i)], axis=-1)
-    coefficients, *_ = np.linalg.lstsq(basis[valid], z[valid], rcond=None)
+    chosen = basis[valid]
+    # Normal equations: the monomials on [-1, 1] are well conditioned for the low orders used here.
+    coefficients = np.linalg.solve(chosen.T @ chosen, chosen.T @ z[valid])
     return basis @ coefficients
 
 

@@ -17,7 +17,7 @@ from skintopo.filters import level
 from skintopo.heightmap import HeightMap
 from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
 from skintopo.texture.fractal import METHODS as FRACTAL_METHODS
-from skintopo.texture.fractal import fractal_dimension
+from skintopo.texture.fractal import fractal_dimension, resample_for_fractal
 from skintopo.texture.profile import PROFILE_UNITS, line_profile_parameters, profile_parameters
 
 __all__ = ["Parameter", "measure_texture", "profile_parameters", "line_profile_parameters", "fractal_dimension", "PROFILE_UNITS"]
@@ -79,8 +79,9 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
         references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
     parameters = [Parameter(name, float(value), _UNITS[name], references[name]) for name, value in values.items()]
+    resampled = resample_for_fractal(surface) if fractal_methods else None
     for method in fractal_methods:
-        result = fractal_dimension(surface, method)
+        result = fractal_dimension(surface, method, resampled)
         parameters.append(Parameter(f"D_{method}", result.dimension, "", f"fractal dimension, {method} (Gwyddion definition)" if method in FRACTAL_METHODS else f"fractal dimension, {method}"))
     return parameters
 

@@ -39,6 +39,7 @@ from skintopo.heightmap import HeightMap
 DEFAULT_P = 10.0  # % (ISO 25178-2 default for Vmp, Vmc, Vvc)
 DEFAULT_Q = 80.0  # %
 EQUIVALENT_LINE_WIDTH = 40.0  # % of the material ratio
+FLAT_SQ_UM = 1e-9  # below this Sq the map is flat: Ssk and Sku are undefined
 
 
 def _values(height: HeightMap):
@@ -53,15 +54,16 @@ def height_parameters(height: HeightMap):
 
     Sa = mean |z|, Sq = sqrt(mean z^2), Ssk = mean z^3 / Sq^3, Sku = mean z^4 / Sq^4 (not
     excess kurtosis: a Gaussian surface has Sku = 3), Sp = max z, Sv = -min z (a positive
-    depth), Sz = Sp + Sv. Ssk and Sku are dimensionless and NaN for a flat map (Sq = 0).
+    depth), Sz = Sp + Sv. Ssk and Sku are dimensionless, and NaN (undefined: 0/0) for a flat
+    map, Sq below 1e-9 um (levelling round-off leaves about 1e-14 um on a plane).
     """
     z = _values(height)
     z = z - z.mean()
     squared = z * z
     sq = float(np.sqrt(squared.mean()))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ssk = float((squared * z).mean() / sq**3) if sq > 0 else float("nan")
-        sku = float((squared * squared).mean() / sq**4) if sq > 0 else float("nan")
+    flat = sq < FLAT_SQ_UM
+    ssk = float("nan") if flat else float((squared * z).mean() / sq**3)
+    sku = float("nan") if flat else float((squared * squared).mean() / sq**4)
     sp, sv = float(z.max()), float(-z.min())
     return {"Sa": float(np.abs(z).mean()), "Sq": sq, "Ssk": ssk, "Sku": sku, "Sp": sp, "Sv": sv, "Sz": sp + sv}
 
@@ -101,11 +103,17 @@ def autocorrelation(height: HeightMap):
     fast = [scipy.fft.next_fast_len(n) for n in shape]
 
     def correlate(a):
-        spectrum = scipy.fft.rfft2(a, fast)
-        full = scipy.fft.irfft2(spectrum * np.conj(spectrum), fast)
+        spectrum = scipy.fft.rfft2(a, fast, workers=-1)
+        full = scipy.fft.irfft2(spectrum * np.conj(spectrum), fast, workers=-1)
         return np.roll(full, (z.shape[0] - 1, z.shape[1] - 1), axis=(0, 1))[: shape[0], : shape[1]]
 
-    raw, overlap = correlate(z), np.round(correlate(weight))
+    raw = correlate(z)
+    if height.mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|)
+        lag_rows = z.shape[0] - np.abs(np.arange(-(z.shape[0] - 1), z.shape[0]))
+        lag_columns = z.shape[1] - np.abs(np.arange(-(z.shape[1] - 1), z.shape[1]))
+        overlap = np.outer(lag_rows, lag_columns).astype(float)
+    else:
+        overlap = np.round(correlate(weight))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(overlap > 0, raw / overlap, np.nan)
 
@@ -128,7 +136,9 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
     touches = region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any()
     angles = np.linspace(0, np.pi, directions, endpoint=False)  # the ACF is point-symmetric
     step = min(dx, dy) / 4  # um along each ray
-    radius = np.arange(int(np.hypot(centre[0] * dy, centre[1] * dx) / step) + 2) * step
+    region_rows, region_cols = np.nonzero(region)
+    reach = np.hypot((region_rows - centre[0]) * dy, (region_cols - centre[1]) * dx).max() + 2 * max(dx, dy)
+    radius = np.arange(int(reach / step) + 2) * step  # rays need only cross the central region
     rows = centre[0] - np.sin(angles)[:, None] * radius[None, :] / dy  # y up: rows go the other way
     cols = centre[1] + np.cos(angles)[:, None] * radius[None, :] / dx
     inside = (rows >= 0) & (rows <= acf.shape[0] - 1) & (cols >= 0) & (cols <= acf.shape[1] - 1)

@@ -63,8 +63,10 @@ class FractalResult:
     intercept: float
 
 
-def _resampled(height: HeightMap):
-    """Bilinear, pixel-centre resampling of the whole field to (2^k + 1)^2, k = round(log2 xres)."""
+def resample_for_fractal(height: HeightMap):
+    """Bilinear, pixel-centre resampling of the whole field to (2^k + 1)^2, k = round(log2 xres).
+
+    Returns (z, k); pass it as ``resampled=`` to several estimators to resample only once."""
     z = np.asarray(height.z, dtype=float)
     if not height.mask.all():
         if not height.mask.any():
@@ -92,9 +94,9 @@ def _fit(method, x, y, dimension_of_slope):
     return FractalResult(method, float(dimension_of_slope(slope)), x, y, float(slope), float(intercept))
 
 
-def partitioning(height: HeightMap) -> FractalResult:
+def partitioning(height: HeightMap, resampled=None) -> FractalResult:
     """Variance (partitioning) method, Gwyddion's definition: D = 3 - a/2."""
-    z, k = _resampled(height)
+    z, k = resampled or resample_for_fractal(height)
     xs, ys = [], []
     for level in range(1, k):
         r = 2**level
@@ -106,9 +108,9 @@ def partitioning(height: HeightMap) -> FractalResult:
     return _fit("partitioning", xs, ys, lambda a: 3 - a / 2)
 
 
-def cube_counting(height: HeightMap) -> FractalResult:
+def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
     """Cube counting, Gwyddion's definition: D = a."""
-    z, k = _resampled(height)
+    z, k = resampled or resample_for_fractal(height)
     z = z - z.min()
     h = z.max()
     if h <= 0:
@@ -137,9 +139,9 @@ def _block_extreme(z, s, m, pick):
     return pick(blocks, along_rows[:, s : m * s + 1 : s])
 
 
-def triangulation(height: HeightMap) -> FractalResult:
+def triangulation(height: HeightMap, resampled=None) -> FractalResult:
     """Triangulation, Gwyddion's definition: D = 2 + a."""
-    z, k = _resampled(height)
+    z, k = resampled or resample_for_fractal(height)
     h = z.max() - z.min()
     if h <= 0:
         raise SkinTopoError("triangulation: the map is flat")
@@ -165,9 +167,9 @@ def _heron(s, z0, z1, z2):
     return np.sqrt(np.maximum(half * (half - a) * (half - b) * (half - c), 0.0))
 
 
-def power_spectrum(height: HeightMap) -> FractalResult:
+def power_spectrum(height: HeightMap, resampled=None) -> FractalResult:
     """Row-wise power spectrum method, Gwyddion (2.66+) definition: D = 3.5 + a/2."""
-    z, _ = _resampled(height)
+    z, _ = resampled or resample_for_fractal(height)
     rows, n = z.shape
     index = np.arange(n)
     design = np.column_stack([np.ones(n), index])
@@ -188,8 +190,9 @@ def power_spectrum(height: HeightMap) -> FractalResult:
         return _fit("power-spectrum", np.log(k_index), np.log(total), lambda a: 3.5 + a / 2)
 
 
-def power_spectrum_areal(height: HeightMap) -> FractalResult:
-    """Physically scaled variant: radially averaged 2-D PSD, D = (8 + slope) / 2."""
+def power_spectrum_areal(height: HeightMap, resampled=None) -> FractalResult:
+    """Physically scaled variant: radially averaged 2-D PSD, D = (8 + slope) / 2
+    (``resampled`` is accepted for a uniform signature and ignored: this one uses the field as it is)."""
     z = np.where(height.mask, height.z, np.nan)
     valid = np.isfinite(z)
     if valid.sum() < 64:
@@ -223,8 +226,8 @@ ESTIMATORS = {
 }
 
 
-def fractal_dimension(height: HeightMap, method="cube-counting") -> FractalResult:
+def fractal_dimension(height: HeightMap, method="cube-counting", resampled=None) -> FractalResult:
     """Fractal dimension by one of :data:`ESTIMATORS` (see the module notes)."""
     if method not in ESTIMATORS:
         raise SkinTopoError(f"unknown fractal method {method!r}; choose from {sorted(ESTIMATORS)}")
-    return ESTIMATORS[method](height)
+    return ESTIMATORS[method](height, resampled)

@@ -1,0 +1,63 @@
+"""Benchmark: every areal, volume and functional parameter plus the four fractal estimators
+on a 1024 x 1024 map in one call (skintopo.texture.measure_texture), against surfalize
+computing its equivalent set (no fractal dimension: surfalize has none) in the same run.
+Target (issue 5): at least 10x faster than surfalize. surfalize is GPL: it is only imported
+here and in the tests, never by the package. Results: bench/results/texture.json.
+"""
+
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.heightmap import HeightMap
+from skintopo.texture import measure_texture
+
+SURFALIZE_SET = ("Sa", "Sq", "Ssk", "Sku", "Sp", "Sv", "Sz", "Sdq", "Sdr", "Sal", "Str", "Std",
+                 "Sk", "Spk", "Svk", "Smr1", "Smr2", "Sxp", "Vmp", "Vmc", "Vvc", "Vvv")
+
+
+def surface(size=1024):
+    rng = np.random.default_rng(0)
+    k = np.hypot(np.fft.fftfreq(size)[:, None], np.fft.fftfreq(size)[None, :])
+    k[0, 0] = np.inf
+    z = np.real(np.fft.ifft2(k**-1.7 * (rng.standard_normal((size, size)) + 1j * rng.standard_normal((size, size)))))
+    return z / z.std() * 10
+
+
+def main():
+    z = surface()
+    height = HeightMap(z, 1.0)
+    measure_texture(height)  # warm-up
+    ours = []
+    for _ in range(3):
+        start = time.perf_counter()
+        measure_texture(height)
+        ours.append(time.perf_counter() - start)
+    result = {"benchmark": "1024x1024: areal + volume + functional parameters and 4 fractal estimators in one call",
+              "skintopo_seconds": round(min(ours), 3)}
+    try:
+        from surfalize import Surface
+    except ImportError:
+        result["surfalize_seconds"] = None
+        result["note"] = "surfalize not installed (pip install surfalize) - no comparison"
+    else:
+        times = []
+        for _ in range(2):
+            s = Surface(z.copy(), 1.0, 1.0)
+            start = time.perf_counter()
+            for name in SURFALIZE_SET:
+                getattr(s, name)()
+            times.append(time.perf_counter() - start)
+        result["surfalize_seconds"] = round(min(times), 3)
+        result["speedup"] = round(min(times) / min(ours), 1)
+        result["target_speedup"] = 10
+    result["machine"] = f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"
+    (Path(__file__).parent / "results" / "texture.json").write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
