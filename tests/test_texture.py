@@ -114,9 +114,9 @@ def test_profile_parameters_of_a_sinusoid():
     closed = {"Ra": 2 * A / np.pi, "Rq": A / np.sqrt(2), "Rku": 1.5, "Rp": A, "Rv": A, "Rz": 2 * A, "Rt": 2 * A}
     for name, value in closed.items():  # samples fall half a step beside the crests: cos(pi/40) of A
         assert p[name] == pytest.approx(value, rel=5e-3), name
-    # Rdq: the 7-point slopes exist only 3 samples in from each end, where the slope is near 0
-    # here, so its mean square is over 394 of 400 samples: 0.7% above A k / sqrt(2)
-    assert p["Rdq"] == pytest.approx(A * k / np.sqrt(2) * np.sqrt(400 / 394), rel=1e-3)
+    # Rdq: the 7-point slopes exist only 3 samples in from each end, so compare with the RMS
+    # of the analytic slope -A k sin(k x) over those samples (the formula is O(h^6) accurate)
+    assert p["Rdq"] == pytest.approx(np.sqrt(np.mean((A * k * np.sin(k * x[3:-3])) ** 2)), rel=1e-6)
     assert abs(p["Rsk"]) < 1e-9
 
 
