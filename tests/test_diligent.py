@@ -44,3 +44,30 @@ def test_plain_least_squares_reproduces_the_published_per_channel_numbers(dilige
         result = photometric_stereo(images.images, images.lights, mask=acquisition.mask, shadow_fraction=0.0)
         error = angular_error_degrees(result.normals, truth)[acquisition.mask].mean()
         assert error == pytest.approx(published, abs=0.01), band
+
+
+def spread_lights(lights, count):
+    """Farthest-point choice of ``count`` well-spread lights, starting from the most frontal."""
+    chosen = [int(np.argmax(lights[:, 2]))]
+    while len(chosen) < count:
+        distance = np.min(np.linalg.norm(lights[:, None] - lights[chosen][None], axis=2), axis=1)
+        chosen.append(int(np.argmax(distance)))
+    return chosen
+
+
+@pytest.mark.slow
+def test_robust_solver_on_ball(diligent_ball):
+    acquisition = load_acquisition(diligent_ball, bands=["white"])
+    truth = scipy.io.loadmat(diligent_ball / "Normal_gt.mat")["Normal_gt"]
+    images = acquisition.bands["white"]
+    errors = {}
+    for count in (96, 12, 4):
+        chosen = list(range(96)) if count == 96 else spread_lights(images.lights, count)
+        for solver in ("least-squares", "robust"):
+            result = photometric_stereo(images.images[chosen], images.lights[chosen], mask=acquisition.mask, solver=solver)
+            error = angular_error_degrees(result.normals, truth)[acquisition.mask]
+            errors[count, solver] = (float(np.nanmean(error)), float(np.isnan(error).mean()))
+    for (count, solver), (mean, invalid) in errors.items():
+        print(f"DiLiGenT ball, white, {count:2d} lights, {solver:>13}: {mean:.3f} deg ({100 * invalid:.1f}% invalid)")
+    assert errors[96, "robust"][0] <= 2.5
+    assert errors[12, "robust"][0] < errors[12, "least-squares"][0]

@@ -81,3 +81,30 @@ def test_degenerate_light_sets_are_refused(lights, message):
     images = np.ones((len(lights), 3, 3))
     with pytest.raises(SkinTopoError, match=message):
         photometric_stereo(images, lights)
+
+
+def test_robust_solver_removes_one_specular_outlier_per_pixel():
+    z, p, q = plane_and_bump(shape=(40, 50))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = np.array([four_lights()[i] for i in range(4)] + [[0.0, 0.0, 1.0]])
+    images = render_lambertian(truth, 0.5, lights).astype(np.float32)
+    images[2, 5:30] += 0.3  # a highlight in light 2
+    plain = photometric_stereo(images, lights)
+    robust = photometric_stereo(images, lights, solver="robust")
+    assert np.nanmean(angular_error_degrees(plain.normals, truth)[5:30]) > 5
+    assert np.nanmax(angular_error_degrees(robust.normals, truth)) < 0.1
+    assert not robust.used[2, 5:30].any() and robust.used[2, 30:].all()
+
+
+def test_specular_free_band_removes_white_highlights():
+    from skintopo.normals import specular_free_images
+
+    z, p, q = plane_and_bump(shape=(40, 50))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = four_lights()
+    highlight = np.zeros((4, 40, 50))
+    highlight[1, 10:20] = 0.2  # the same (white) specular in every band
+    bands = [render_lambertian(truth, albedo, lights) + highlight for albedo in (0.6, 0.41, 0.33)]
+    free = photometric_stereo(specular_free_images(*bands), lights)
+    assert np.nanmax(angular_error_degrees(free.normals, truth)) < 0.1
+    assert np.nanmean(angular_error_degrees(photometric_stereo(bands[2], lights).normals, truth)[10:20]) > 5

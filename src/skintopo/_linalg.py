@@ -28,3 +28,4 @@ def solve_symmetric_3x3(a, b):
             axis=1,
         ) / det[:, None]
     return x, det
+

@@ -518,7 +518,7 @@ def _load_diligent(folder, pixel_um, bands, saturation):
     return Acquisition(folder, "diligent", by_band, 1.0 if assumed else float(pixel_um), assumed, mask)
 
 
-def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None):
+def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None):
     """Write images to an acquisition folder in the manifest format (16-bit PNG, linear).
 
     Parameters
@@ -535,6 +535,9 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None):
         Written as ``mask.png`` (255 inside).
     description : str, optional
         Free text stored in the manifest.
+    intensities : dict of str to float, optional
+        Relative light intensity per band (the gain between radiance and recorded values),
+        written to every image entry of the band.
 
     Returns
     -------
@@ -556,6 +559,8 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None):
             counts = np.round(np.clip(np.nan_to_num(image), 0.0, 1.0) * 65535).astype(np.uint16)
             cv2.imwrite(str(folder / name), counts)
             entry = {"file": name, "band": band, "light": [round(float(v), 9) for v in light]}
+            if intensities and band in intensities:
+                entry["intensity"] = float(intensities[band])
             if DEFAULT_WAVELENGTH_NM[band] is not None:
                 entry["wavelength_nm"] = DEFAULT_WAVELENGTH_NM[band]
             entries.append(entry)

@@ -19,9 +19,9 @@ from skintopo import __version__
 from skintopo.acquisition import BANDS, DEFAULT_SATURATION, MANIFEST_NAME, load_acquisition
 from skintopo.errors import SkinTopoError
 from skintopo.height import AUTO, DEFAULT_INTEGRATOR, INTEGRATORS
-from skintopo.normals import DEFAULT_SHADOW_FRACTION
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, SOLVERS
 from skintopo.outputs import check_output_folder, staged_output_folder, write_json, write_json_atomic, write_label_image
-from skintopo.reconstruct import band_statistics, reconstruct_band
+from skintopo.reconstruct import SPECULAR_FREE, band_statistics, reconstruct_band
 from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
 
 
@@ -77,6 +77,8 @@ def _add_acquisition_options(parser):
         "--saturation", type=_fraction, default=DEFAULT_SATURATION,
         help=f"fraction of full scale at or above which a pixel is saturated and left out (default {DEFAULT_SATURATION})",
     )
+    parser.add_argument("--solver", choices=SOLVERS, default="least-squares",
+                        help="photometric stereo solver: least-squares (default) or robust (outlier rejection)")
     parser.add_argument(
         "--shadow-fraction", type=_fraction, default=DEFAULT_SHADOW_FRACTION,
         help="observations below this fraction of a pixel's brightest are taken as shadow and left out "
@@ -111,10 +113,10 @@ def _summary(command, args, acquisition=None, **extra):
     return summary
 
 
-def _reconstruct_all(args, acquisition):
+def _reconstruct_all(args, acquisition, bands=None):
     return {
-        band: reconstruct_band(acquisition, band, integrator=args.integrator, shadow_fraction=args.shadow_fraction)
-        for band in _progress(acquisition.bands, quiet=args.quiet, desc="reconstruct")
+        band: reconstruct_band(acquisition, band, integrator=args.integrator, shadow_fraction=args.shadow_fraction, solver=args.solver)
+        for band in _progress(bands or list(acquisition.bands), quiet=args.quiet, desc="reconstruct")
     }
 
 
@@ -126,15 +128,16 @@ def _write_band_outputs(folder, result):
 
 
 def cmd_reconstruct(args):
-    bands = None if args.band == "all" else [args.band]
+    derived = args.band == SPECULAR_FREE
+    bands = None if args.band == "all" else (["red", "green", "blue"] if derived else [args.band])
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
     acquisition = _load(args, bands)
     seconds_load = time.perf_counter() - started
-    results = _reconstruct_all(args, acquisition)
+    results = _reconstruct_all(args, acquisition, [SPECULAR_FREE] if derived else None)
     summary = _summary(
         "reconstruct", args, acquisition,
-        options={"integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction},
+        options={"integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction, "solver": args.solver},
         units={"height": "um", "normals": "unit vector, camera frame (x right, y up, z toward camera)"},
         seconds_load=seconds_load,
         bands={band: band_statistics(result) for band, result in results.items()},
@@ -146,10 +149,10 @@ def cmd_reconstruct(args):
         write_json(staging / "summary.json", summary)
 
     if not args.quiet:
-        print(f"{'band':<6} {'valid %':>8} {'lights':>6} {'residual':>9} {'range um':>9}")
+        print(f"{'band':<13} {'valid %':>8} {'lights':>6} {'residual':>9} {'range um':>9}")
         for band, stats in summary["bands"].items():
             print(
-                f"{band:<6} {100 * stats['valid_fraction']:8.1f} {stats['median_lights_used']:6.0f} "
+                f"{band:<13} {100 * stats['valid_fraction']:8.1f} {stats['median_lights_used']:6.0f} "
                 f"{stats['mean_residual']:9.4f} {stats['height_range_um']:9.2f}"
             )
         print(f"wrote {Path(args.out).resolve()}")
@@ -259,7 +262,7 @@ def cmd_demo(args):
         write_synthetic_acquisition(staging / "acquisition", surface, bands, settings=settings, seed=args.seed, info=info)
         _say(args, f"simulated {args.preset}, {args.skin} skin, {args.size}x{args.size} px at 20 um ({time.perf_counter() - started:.1f} s)")
         args.acquisition, args.pixel_um, args.saturation = staging / "acquisition", None, DEFAULT_SATURATION
-        args.shadow_fraction, args.integrator = DEFAULT_SHADOW_FRACTION, DEFAULT_INTEGRATOR
+        args.shadow_fraction, args.integrator, args.solver = DEFAULT_SHADOW_FRACTION, DEFAULT_INTEGRATOR, "least-squares"
         acquisition = _load(args, None)
         results = _reconstruct_all(args, acquisition)
         correction = spectral_correction({b: results[b].stereo.normals for b in ("red", "green", "blue")}, acquisition.pixel_um)
@@ -407,7 +410,8 @@ def build_parser():
     reconstruct = commands.add_parser("reconstruct", help="normals, albedo and height map for each band of an acquisition")
     _add_acquisition_options(reconstruct)
     reconstruct.add_argument("-o", "--out", type=Path, required=True, help="output folder (created; must be empty or new)")
-    reconstruct.add_argument("--band", choices=[*BANDS, "all"], default="all", help="band to process (default all present)")
+    reconstruct.add_argument("--band", choices=[*BANDS, SPECULAR_FREE, "all"], default="all",
+                             help="band to process (default all present); specular-free = SUV projection of red, green, blue")
     reconstruct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
     reconstruct.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
@@ -458,7 +462,8 @@ def build_parser():
     measure.add_argument("--region", type=_parse_region, action="append", default=[], help="extra region NAME=x0,y0,x1,y1 in um (repeatable)")
     measure.add_argument("--overwrite", action="store_true")
     measure.add_argument("-q", "--quiet", action="store_true")
-    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION, integrator=DEFAULT_INTEGRATOR)
+    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION,
+                         integrator=DEFAULT_INTEGRATOR, solver="least-squares")
 
     tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
     tables.add_argument("-o", "--out", type=Path, required=True)

@@ -42,6 +42,8 @@ class PhotometricStereoResult:
         Number of usable observations at each pixel (0 outside the mask); below 3 the pixel
         is invalid.
     valid : ndarray of bool, shape (rows, columns)
+    used : ndarray of bool, shape (m, rows, columns)
+        Which observations entered each pixel's fit.
     """
 
     normals: np.ndarray
@@ -49,10 +51,120 @@ class PhotometricStereoResult:
     residual: np.ndarray
     lights_used: np.ndarray
     valid: np.ndarray
+    used: np.ndarray
 
 
-def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION):
-    """Per-pixel Lambertian least squares, n = (S^T S)^-1 S^T I.
+_UPPER = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]  # upper entries of a symmetric 3 x 3
+
+
+def _fit(intensity, usable, lights):
+    """g = rho n for every pixel from the usable observations (intensity already 0 elsewhere).
+
+    One pseudo-inverse serves every pixel whose observations are all usable; the others solve
+    their own weighted 3 x 3 normal equations S^T W S g = S^T W I at once. Pixels with fewer
+    than 3 usable observations, or whose remaining lights no longer span 3-D, get NaN.
+    """
+    m = lights.shape[0]
+    count = np.add.reduce(usable, axis=0, dtype=np.int16)
+    full = count == m
+    pinv = np.linalg.pinv(lights).astype(np.float32)
+    if full.all():
+        return pinv @ intensity, count
+    g = np.full((3, intensity.shape[1]), np.nan, dtype=np.float32)
+    g[:, full] = pinv @ intensity[:, full]
+    partial = ~full & (count >= 3)
+    if partial.any():
+        weights = usable[:, partial].T.astype(np.float64)  # (k, m)
+        outer = np.stack([lights[:, i] * lights[:, j] for i, j in _UPPER], axis=1)  # (m, 6)
+        solution, det = solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
+        # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
+        scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
+        solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
+        g[:, partial] = solution.T
+    return g, count
+
+
+def _fit_residual(intensity, usable, lights):
+    """Fit and the RMS residual of each pixel's usable observations."""
+    g, count = _fit(intensity, usable, lights)
+    error = np.where(usable, intensity - lights.astype(np.float32) @ g, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return g, count, np.sqrt((error * error).sum(axis=0) / count)
+
+
+def _reject_outliers(intensity, usable, lights, g, count, *, threshold, max_iterations):
+    """Robust solver: drop, per pixel, observations the Lambertian fit cannot explain, while
+    the RMS residual exceeds ``threshold`` times the albedo, never going below 3 lights.
+
+    Few lights (m <= 8): each candidate is left out in turn and the one whose removal leaves
+    the smallest residual is dropped when it is clearly better than the next; when several
+    removals explain the data equally well (always with 4 lights: any 3 fit exactly), the
+    brightest of them is taken as the outlier, i.e. a specular highlight is assumed. Cast
+    shadows are left to the shadow threshold; a pixel with both a highlight and an
+    unthresholded shadow under 4 lights cannot be repaired. Many lights: the ceil(2% of m) observations with the
+    largest residuals are dropped per pass. Pixels that changed are refitted.
+    """
+    m = lights.shape[0]
+    lights32 = lights.astype(np.float32)
+    active = np.flatnonzero(count > 3)
+    for _ in range(max_iterations):
+        if active.size == 0:
+            break
+        sub_g = g[:, active]
+        albedo = np.sqrt((sub_g * sub_g).sum(axis=0))
+        error = np.where(usable[:, active], intensity[:, active] - lights32 @ sub_g, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms = np.sqrt((error * error).sum(axis=0) / count[active])
+        suspect = rms > threshold * albedo
+        if not suspect.any():
+            break
+        active = active[suspect]
+        sub_usable = usable[:, active]
+        remaining = count[active].astype(np.int32)
+        if m <= 8:
+            scores = np.full((m, active.size), np.inf)
+            for j in range(m):
+                trial = sub_usable.copy()
+                trial[j] = False
+                candidate = sub_usable[j] & (remaining > 3)
+                if candidate.any():
+                    _, _, left = _fit_residual(intensity[:, active][:, candidate], trial[:, candidate], lights)
+                    scores[j, candidate] = left
+            order = np.sort(scores, axis=0)
+            sub_albedo = albedo[suspect]
+            # Removals that explain the data equally well are ties; among tied candidates a
+            # specular outlier is the one brighter than the fit (positive residual).
+            ties = scores <= order[0] + 1e-3 * sub_albedo
+            brightest = np.argmax(np.where(ties, intensity[:, active], -np.inf), axis=0)
+            clear = (ties.sum(axis=0) == 1) & (order[0] < 0.5 * order[1])
+            tied = ties.sum(axis=0) > 1
+            unique = np.isfinite(order[0]) & (clear | tied)
+            best = np.where(tied, brightest, np.argmin(scores, axis=0))
+            drop_rows, drop_cols = best[unique], np.flatnonzero(unique)
+        else:
+            per_pass = max(1, int(np.ceil(0.02 * m)))
+            residual = np.where(sub_usable, np.abs(error[:, suspect]), -1.0)
+            worst = np.argsort(-residual, axis=0)[:per_pass]
+            rank = np.arange(per_pass)[:, None]
+            allowed = (rank < (remaining - 3)[None, :]) & (np.take_along_axis(residual, worst, axis=0) > 0)
+            drop_rows, drop_cols = worst[allowed], np.broadcast_to(np.arange(active.size), worst.shape)[allowed]
+        if drop_rows.size == 0:
+            break
+        usable[drop_rows, active[drop_cols]] = False
+        refit = np.unique(active[drop_cols])
+        intensity[:, refit] = np.where(usable[:, refit], intensity[:, refit], np.float32(0))
+        g[:, refit], count[refit] = _fit(intensity[:, refit], usable[:, refit], lights)
+        active = refit[count[refit] > 3]
+    return g, count
+
+
+SOLVERS = ("least-squares", "robust")
+DEFAULT_ROBUST_THRESHOLD = 0.02
+
+
+def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION, solver="least-squares",
+                       exclude=None, robust_threshold=DEFAULT_ROBUST_THRESHOLD, max_iterations=12):
+    """Per-pixel Lambertian least squares, n = (S^T S)^-1 S^T I, optionally robust.
 
     Parameters
     ----------
@@ -66,6 +178,17 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     shadow_fraction : float
         An observation below ``shadow_fraction`` times the pixel's brightest observation is
         taken as shadowed and left out. 0 keeps every finite observation.
+    solver : ``"least-squares"`` or ``"robust"``
+        ``robust`` then drops, per pixel, observations the Lambertian fit cannot explain
+        (specular highlights, cast shadows) while the RMS residual exceeds
+        ``robust_threshold`` times the albedo, never going below 3 lights, and refits (see
+        ``_reject_outliers``). With 5 or more lights one outlier is identified by leaving
+        each light out in turn; with 4 lights no single band can tell which light is wrong
+        (any 3 fit exactly), so the robust solver equals least squares there, and the other
+        bands' evidence is what can help (``specular-free`` band,
+        :func:`specular_free_images`).
+    exclude : array_like of bool, shape (m, rows, columns), optional
+        Observations to leave out from the start.
 
     Returns
     -------
@@ -86,6 +209,8 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
         raise SkinTopoError(f"expected images of shape (m={lights.shape[0]}, rows, columns), got {images.shape}")
     if not 0 <= shadow_fraction < 1:
         raise SkinTopoError(f"shadow_fraction must be in [0, 1), got {shadow_fraction}")
+    if solver not in SOLVERS:
+        raise SkinTopoError(f"unknown solver {solver!r}; choose from {list(SOLVERS)}")
     m, rows, columns = images.shape
     if mask is None:
         mask = np.ones((rows, columns), dtype=bool)
@@ -99,32 +224,19 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     if not whole_field:
         intensity = intensity[:, flat_mask]  # (m, P)
     usable = np.isfinite(intensity)
-    peak = np.fmax.reduce(intensity, axis=0)  # ignores NaN; NaN only if all are NaN
+    if exclude is not None:
+        exclude = np.asarray(exclude, dtype=bool).reshape(m, -1)
+        usable &= ~(exclude if whole_field else exclude[:, flat_mask])
+    peak = np.fmax.reduce(np.where(usable, intensity, np.nan), axis=0)  # ignores NaN; NaN only if all are NaN
     if shadow_fraction > 0:
         with np.errstate(invalid="ignore"):
             usable &= intensity > np.float32(shadow_fraction) * peak
     with np.errstate(invalid="ignore"):
         usable &= peak > 0  # a pixel dark under every light has no normal
     intensity = np.where(usable, intensity, np.float32(0))
-    count = np.add.reduce(usable, axis=0, dtype=np.int16)
-
-    full = count == m
-    pinv = np.linalg.pinv(lights).astype(np.float32)
-    if full.all():
-        g = pinv @ intensity  # one pseudo-inverse for every pixel, (3, P)
-    else:
-        g = np.full((3, intensity.shape[1]), np.nan, dtype=np.float32)
-        g[:, full] = pinv @ intensity[:, full]  # one pseudo-inverse for all fully lit pixels
-        partial = ~full & (count >= 3)
-        if partial.any():
-            weights = usable[:, partial].T.astype(np.float64)  # (k, m)
-            upper = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
-            outer = np.stack([lights[:, i] * lights[:, j] for i, j in upper], axis=1)  # (m, 6)
-            solution, det = solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
-            # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
-            scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
-            solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
-            g[:, partial] = solution.T
+    g, count = _fit(intensity, usable, lights)
+    if solver == "robust":
+        g, count = _reject_outliers(intensity, usable, lights, g, count, threshold=robust_threshold, max_iterations=max_iterations)
 
     albedo = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
     with np.errstate(invalid="ignore"):
@@ -145,12 +257,15 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
         out[flat_mask] = values
         return out.reshape((rows, columns) + values.shape[1:])
 
+    used = np.zeros((m, rows * columns), dtype=bool)
+    used[:, flat_mask] = usable
     return PhotometricStereoResult(
         normals=to_image(normal),
         albedo=to_image(albedo),
         residual=to_image(residual),
         lights_used=to_image(count, fill=0),
         valid=to_image(good, fill=False),
+        used=used.reshape(m, rows, columns),
     )
 
 
@@ -185,3 +300,29 @@ def render_lambertian(normals, albedo, lights):
     """
     shading = np.einsum("rci,mi->mrc", np.asarray(normals, dtype=np.float64), np.asarray(lights, dtype=np.float64))
     return np.asarray(albedo) * np.maximum(shading, 0.0)
+
+
+def specular_free_images(red, green, blue):
+    """Specular-invariant shading from three colour bands under the same lights (SUV colour
+    space, Mallick, Zickler, Kriegman & Belhumeur, CVPR 2005).
+
+    With the bands radiometrically calibrated against each other (relative LED intensities
+    divided out), skin's surface (specular) reflection has the colour of the light, s = (1, 1,
+    1) / sqrt(3), while the diffuse part has the skin's colour. Removing each observation's
+    component along s leaves a two-channel diffuse signal whose magnitude is |rho_perp| n . l:
+    Lambertian, with the highlights gone. This is how the other bands' evidence removes the
+    specular lobe that a single band of 4 lights cannot reject.
+
+    Parameters
+    ----------
+    red, green, blue : ndarray, shape (m, rows, columns)
+        Intensity-corrected images of the three bands, observation i under the same light.
+
+    Returns
+    -------
+    ndarray, shape (m, rows, columns)
+    """
+    rgb = np.stack([np.asarray(red, np.float32), np.asarray(green, np.float32), np.asarray(blue, np.float32)], axis=-1)
+    white = np.full(3, 1 / np.sqrt(3), dtype=np.float32)
+    diffuse = rgb - (rgb @ white)[..., None] * white
+    return np.sqrt((diffuse * diffuse).sum(axis=-1))

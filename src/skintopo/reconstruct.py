@@ -14,7 +14,8 @@ import numpy as np
 from skintopo.acquisition import Acquisition
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
 from skintopo.heightmap import HeightMap
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, PhotometricStereoResult, photometric_stereo
+from skintopo.errors import SkinTopoError
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, PhotometricStereoResult, photometric_stereo, specular_free_images
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,14 +29,33 @@ class BandReconstruction:
     seconds_integration: float
 
 
-def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION):
+SPECULAR_FREE = "specular-free"
+
+
+def band_images(acquisition: Acquisition, band):
+    """(images, lights) of a band, or of the derived ``specular-free`` band (SUV projection of
+    red, green and blue, which must share their lights; see
+    :func:`skintopo.normals.specular_free_images`)."""
+    if band != SPECULAR_FREE:
+        return acquisition.bands[band].images, acquisition.bands[band].lights
+    missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
+    if missing:
+        raise SkinTopoError(f"the specular-free band needs red, green and blue; missing {missing}")
+    lights = acquisition.bands["red"].lights
+    if any(acquisition.bands[b].lights.shape != lights.shape or not np.allclose(acquisition.bands[b].lights, lights, atol=1e-6) for b in ("green", "blue")):
+        raise SkinTopoError("the specular-free band needs red, green and blue images taken under the same lights, in the same order")
+    return specular_free_images(*(acquisition.bands[b].images for b in ("red", "green", "blue"))), lights
+
+
+def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
+                     solver="least-squares"):
     """Photometric stereo and integration for one band of ``acquisition``.
 
     The height map keeps only pixels inside the acquisition mask with a valid normal.
     """
-    images = acquisition.bands[band]
+    images, lights = band_images(acquisition, band)
     start = time.perf_counter()
-    stereo = photometric_stereo(images.images, images.lights, mask=acquisition.mask, shadow_fraction=shadow_fraction)
+    stereo = photometric_stereo(images, lights, mask=acquisition.mask, shadow_fraction=shadow_fraction, solver=solver)
     middle = time.perf_counter()
     height = integrate_normals(stereo.normals, acquisition.pixel_um, mask=stereo.valid, method=integrator)
     end = time.perf_counter()

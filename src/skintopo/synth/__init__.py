@@ -96,7 +96,8 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
         red, green, blue and white (the three LEDs at once: the mean of the three renders),
         images as fractions of full scale, ready for :func:`~skintopo.acquisition.write_acquisition`.
     info : dict
-        Render diagnostics and timings.
+        Render diagnostics and timings; ``exposure_gain`` per band (written as the lights'
+        relative intensity, so bands are radiometrically comparable once loaded).
     """
     settings = settings or RenderSettings()
     if settings.skin not in ("light", "dark"):
@@ -112,7 +113,12 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
     linear["white"] = (linear["red"] + linear["green"] + linear["blue"]) / 3
     info["seconds_render"] = time.perf_counter() - start
     lights = np.asarray(settings.lights, dtype=float)
-    bands = {band: (sensor(images, noise=settings.noise, saturate=settings.saturate, rng=rng), lights) for band, images in linear.items()}
+    bands = {}
+    info["exposure_gain"] = {}
+    for band, images in linear.items():
+        signal, gain = sensor(images, noise=settings.noise, saturate=settings.saturate, rng=rng)
+        bands[band] = (signal, lights)
+        info["exposure_gain"][band] = gain
     return bands, info
 
 
@@ -122,7 +128,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
     with staged_output_folder(out, overwrite=overwrite) as staging:
         write_acquisition(
             staging, bands, surface.spec.pixel_um, mask=np.ones(surface.height.shape, bool),
-            description="skintopo synthetic skin acquisition",
+            description="skintopo synthetic skin acquisition", intensities=(info or {}).get("exposure_gain"),
         )
         truth = staging / "ground_truth"
         truth.mkdir()

@@ -311,7 +311,9 @@ def sensor(images, *, noise, saturate, rng):
     """Auto-exposure, shot and read noise; values as fractions of full scale.
 
     Exposure puts the 99.5th percentile of the band at 80% of full scale (with ``saturate``,
-    the 95th percentile at 90%, so highlights clip).
+    the 95th percentile at 90%, so highlights clip). Returns the signal and the exposure gain
+    (signal = gain x rendered intensity, before noise), which the acquisition records as the
+    band's relative light intensity, as a calibrated device would.
     """
     level = np.percentile(images, 95 if saturate else 99.5)
     scale = (0.9 if saturate else 0.8) / level if level > 0 else 1.0
@@ -320,4 +322,4 @@ def sensor(images, *, noise, saturate, rng):
         electrons = np.maximum(signal, 0) * FULL_WELL_ELECTRONS
         sigma = np.sqrt(electrons + READ_NOISE_ELECTRONS**2) / FULL_WELL_ELECTRONS
         signal = signal + noise * sigma * rng.standard_normal(signal.shape)
-    return np.clip(signal, 0.0, 1.0)
+    return np.clip(signal, 0.0, 1.0), float(scale)
