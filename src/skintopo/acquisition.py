@@ -31,8 +31,8 @@ red, green, blue and a grey ``white`` band (the mean of the three intensity-corr
 channels). Such folders carry no pixel size: it is given by the caller (default 1 um, and
 :attr:`Acquisition.pixel_um_assumed` says so).
 
-Images are 8- or 16-bit PNG or TIFF (or float TIFF), kept in linear units: nothing is guessed
-about gamma. 16-bit RGB PNGs are read with OpenCV, because Pillow (and readers built on it)
+Images are 8- or 16-bit PNG or TIFF (or float TIFF), or camera raw files (rawpy: linear,
+no auto-brightness, no white balance), kept in linear units: nothing is guessed about gamma. 16-bit RGB PNGs are read with OpenCV, because Pillow (and readers built on it)
 silently reduces them to 8 bits.
 
 Every problem found while reading is collected and reported at once in an
@@ -57,11 +57,12 @@ BANDS = ("red", "green", "blue", "white")
 DEFAULT_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0, "white": None}
 CHANNEL_INDEX = {"red": 0, "green": 1, "blue": 2}
 CHANNELS = ("red", "green", "blue", "mean")
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw")
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", *RAW_SUFFIXES)
 UNIT_TOLERANCE = 1e-3
 DEFAULT_SATURATION = 0.995
-_IMAGE_KEYS = {"file", "band", "light", "intensity", "wavelength_nm", "channel"}
-_MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description"}
+_IMAGE_KEYS = {"file", "band", "light", "intensity", "wavelength_nm", "channel", "flat"}
+_MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description", "dark", "crosstalk"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,13 +159,30 @@ def read_image(path):
             image = np.moveaxis(image, 0, -1)  # planar RGB
         if image.ndim == 3:
             image = image[..., :3]
+    elif suffix in RAW_SUFFIXES:
+        image = _read_raw(path)
     else:
-        raise SkinTopoError(f"{path}: unsupported image type {suffix!r} (use PNG or TIFF)")
+        raise SkinTopoError(f"{path}: unsupported image type {suffix!r} (use PNG, TIFF or a camera raw file)")
     if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
         raise SkinTopoError(f"{path}: expected a grey or RGB image, got an array of shape {image.shape}")
     if not (np.issubdtype(image.dtype, np.unsignedinteger) or np.issubdtype(image.dtype, np.floating)):
         raise SkinTopoError(f"{path}: unsupported pixel type {image.dtype}")
     return np.ascontiguousarray(image)
+
+
+def _read_raw(path):
+    """Camera raw via rawpy (LibRaw): demosaiced, linear (gamma 1), no auto-brightness, no
+    white balance, the camera's native colour channels, 16 bits."""
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            return raw.postprocess(
+                gamma=(1, 1), no_auto_bright=True, output_bps=16, use_camera_wb=False, use_auto_wb=False,
+                user_wb=[1.0, 1.0, 1.0, 1.0], output_color=rawpy.ColorSpace.raw,
+            )
+    except (rawpy.LibRawError, OSError, ValueError) as exc:
+        raise SkinTopoError(f"{path}: not a readable camera raw file ({exc.__class__.__name__}: {exc})") from None
 
 
 def check_light_directions(lights, names=None):
@@ -365,6 +383,19 @@ def _load_manifest(manifest_path, pixel_um, bands, saturation):
     full_scale = manifest.get("full_scale")
     if full_scale is not None and not _positive_number(full_scale):
         problems.append(f"{name}: field 'full_scale' must be a positive number, got {full_scale!r}")
+    crosstalk = manifest.get("crosstalk")
+    unmix = None
+    if crosstalk is not None:
+        try:
+            matrix = np.array(crosstalk, dtype=float)
+            unmix = np.linalg.inv(matrix) if matrix.shape == (3, 3) and np.all(np.isfinite(matrix)) else None
+        except (ValueError, TypeError, np.linalg.LinAlgError):
+            unmix = None
+        if unmix is None:
+            problems.append(f"{name}: field 'crosstalk' must be an invertible 3 x 3 matrix (camera channel rows, LED band columns)")
+    dark_file = manifest.get("dark")
+    if dark_file is not None and not (isinstance(dark_file, str) and dark_file):
+        problems.append(f"{name}: field 'dark' must name an image file")
     entries = manifest.get("images")
     if not isinstance(entries, list) or not entries:
         problems.append(f"{name}: field 'images' must be a non-empty list")
@@ -401,7 +432,12 @@ def _load_manifest(manifest_path, pixel_um, bands, saturation):
         channel = entry.get("channel")
         if channel is not None and channel not in CHANNELS:
             problems.append(f"{label}: field 'channel' must be one of {list(CHANNELS)}, got {channel!r}")
-        parsed.append((band, folder / file, light, intensity, wavelength, channel, label))
+        flat = entry.get("flat")
+        if flat is not None and not (isinstance(flat, str) and flat):
+            problems.append(f"{label}: field 'flat' must name an image file")
+        elif flat is not None and "intensity" in entry:
+            problems.append(f"{label}: give either 'flat' (the intensity is then measured) or 'intensity', not both")
+        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, None if flat is None else folder / flat))
 
     if problems:  # structure is wrong: do not read images yet, report what we have
         raise AcquisitionError(manifest_path, problems)
@@ -414,23 +450,46 @@ def _load_manifest(manifest_path, pixel_um, bands, saturation):
             problems.append(problem if problem.startswith(name) else f"{name}: band {band}: {problem}")
 
     cache = _ImageCache(problems)
+    dark = cache.get(folder / dark_file) if isinstance(dark_file, str) and dark_file else None
+
+    def linear(image, channel, band):
+        """Dark-subtracted, linear, unmixed, one channel; NaN where saturated."""
+        scale = _full_scale(image.dtype, full_scale)
+        # Normalise before picking the channel, so that a saturated channel makes the mean NaN too.
+        values = _normalise(image, scale, saturation, gamma)
+        if dark is not None:
+            values = values - np.nan_to_num(_normalise(dark, scale, 2.0, gamma))
+        if values.ndim == 3:
+            if unmix is not None:
+                values = values @ unmix.T.astype(np.float32)
+            channel = channel or ("mean" if band == "white" else band)
+            values = values.mean(axis=2) if channel == "mean" else values[..., CHANNEL_INDEX[channel]]
+        return values
+
     by_band = {}
     for band in wanted:
         members = [p for p in parsed if p[0] == band]
         images = []
-        for _, file, light, intensity, wavelength, channel, label in members:
+        for _, file, light, intensity, wavelength, channel, label, flat_file in members:
             image = cache.get(file)
             if image is None:
                 continue
             if image.ndim == 2 and channel not in (None, "mean"):
                 problems.append(f"{label}: field 'channel' is {channel!r} but the image has a single channel")
                 continue
-            # Normalise before picking the channel, so that a saturated channel makes the mean NaN too.
-            values = _normalise(image, _full_scale(image.dtype, full_scale), saturation, gamma)
-            if values.ndim == 3:
-                channel = channel or ("mean" if band == "white" else band)
-                values = values.mean(axis=2) if channel == "mean" else values[..., CHANNEL_INDEX[channel]]
-            images.append(values / np.float32(intensity))
+            values = linear(image, channel, band)
+            if flat_file is not None:
+                flat = cache.get(flat_file)
+                if flat is None:
+                    continue
+                # A flat diffuse target facing the camera gives rho_ref e_i(x) l_z: dividing by it
+                # and multiplying by l_z removes the light's intensity and its spatial fall-off.
+                flat_values = linear(flat, channel, band)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    values = np.where(flat_values > 0, values / flat_values, np.nan) * np.float32(light[2] / np.linalg.norm(light))
+                images.append(values.astype(np.float32))
+            else:
+                images.append(values / np.float32(intensity))
         if len(images) == len(members):
             lights = np.array([p[2] for p in members], dtype=np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):  # bad lights are already reported

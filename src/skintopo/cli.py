@@ -402,6 +402,23 @@ def cmd_synth(args):
     return 0
 
 
+def cmd_calibrate_lights(args):
+    from skintopo.calibration import calibrate_lights
+
+    output = Path(args.out)
+    if output.exists() and not args.overwrite:
+        raise SkinTopoError(f"{output}: exists; use --overwrite to replace it")
+    result = calibrate_lights(args.images, mask=args.mask, method="matte" if args.matte else "chrome")
+    result["note"] = "copy each 'light' (and 'intensity') into the matching image entries of acquisition.json"
+    write_json_atomic(output, result)
+    if not args.quiet:
+        for entry in result["lights"]:
+            x, y, z = entry["light"]
+            print(f"{entry['file']:<30} light ({x:+.4f}, {y:+.4f}, {z:+.4f})" + (f"  intensity {entry['intensity']:.3f}" if "intensity" in entry else ""))
+        print(f"wrote {output.resolve()}")
+    return 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="skintopo", description="3D skin topography by multispectral photometric stereo.")
     parser.add_argument("--version", action="version", version=f"skintopo {__version__}")
@@ -464,6 +481,17 @@ def build_parser():
     measure.add_argument("-q", "--quiet", action="store_true")
     measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION,
                          integrator=DEFAULT_INTEGRATOR, solver="least-squares")
+
+    calibrate = commands.add_parser("calibrate", help="device calibration")
+    calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")
+    lights = calibrate_commands.add_parser("lights", help="light directions from a chrome (or matte white) sphere")
+    lights.add_argument("images", type=Path, nargs="+", help="one sphere image per light, in light order")
+    lights.add_argument("--mask", type=Path, help="sphere mask (default: found automatically)")
+    lights.add_argument("--matte", action="store_true", help="a matte white sphere: directions and relative intensities by least squares")
+    lights.add_argument("-o", "--out", type=Path, required=True, help="lights.json to write")
+    lights.add_argument("--overwrite", action="store_true")
+    lights.add_argument("-q", "--quiet", action="store_true")
+    lights.set_defaults(handler=cmd_calibrate_lights)
 
     tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
     tables.add_argument("-o", "--out", type=Path, required=True)
