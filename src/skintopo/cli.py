@@ -402,6 +402,75 @@ def cmd_synth(args):
     return 0
 
 
+def _load_height_input(path, pixel_um):
+    """A height map file, or a result folder holding height.x3p."""
+    from skintopo.heightmap import HeightMap
+
+    path = Path(path)
+    if path.is_dir():
+        if not (path / "height.x3p").is_file():
+            raise SkinTopoError(f"{path}: a folder given as a height map must hold height.x3p (the output of correct or measure)")
+        path = path / "height.x3p"
+    return HeightMap.load(path, pixel_um=pixel_um)
+
+
+def write_wrinkle_overlay(path, height, measures):
+    """Shaded height with the wrinkles' half-depth regions, centre lines and ids (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LightSource
+
+    z = np.where(height.mask, height.z, np.nanmedian(height.z))
+    shaded = LightSource(azdeg=315, altdeg=45).hillshade(z, dx=height.spacing[1], dy=height.spacing[0])
+    rows, columns = height.shape
+    figure, axes = plt.subplots(figsize=(8, 8 * rows / columns))
+    extent = (0, columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000, 0)
+    axes.imshow(shaded, cmap="gray", extent=extent)
+    axes.imshow(np.ma.masked_equal(measures.labels, 0), cmap="tab10", alpha=0.35, extent=extent, interpolation="nearest")
+    axes.imshow(np.ma.masked_equal(measures.lines.astype(int), 0), cmap="autumn", extent=extent, interpolation="nearest")
+    for wrinkle in measures.wrinkles:
+        axes.text(wrinkle.centroid_x_mm, wrinkle.centroid_y_mm, str(wrinkle.id), color="yellow", fontsize=14, weight="bold", ha="center", va="center")
+    axes.set(xlabel="x (mm)", ylabel="y (mm, image rows)", title=f"{len(measures.wrinkles)} wrinkle(s)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def cmd_wrinkles(args):
+    import csv
+    from dataclasses import asdict
+
+    from skintopo.segmentation import segment_wrinkles
+    from skintopo.wrinkles import measure_wrinkles
+
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
+    height = _load_height_input(args.input, args.pixel_um)
+    segmentation = segment_wrinkles(height, **_segmentation_options(args))
+    measures = measure_wrinkles(height, segmentation)
+    with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
+        data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
+        write_json(staging / "wrinkles.json", data)
+        with open(staging / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
+            fields = list(asdict(measures.wrinkles[0]).keys()) if measures.wrinkles else ["id"]
+            writer = csv.DictWriter(stream, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(asdict(w) for w in measures.wrinkles)
+        write_wrinkle_overlay(staging / "wrinkles_overlay.png", height, measures)
+        write_label_image(staging / "wrinkles.png", measures.labels)
+    if not args.quiet:
+        if not measures.wrinkles:
+            print("no wrinkles found (deeper than the minimum depth and longer than the minimum length)")
+        for w in measures.wrinkles:
+            print(f"wrinkle {w.id}: length {w.length_mm:.2f} mm, max depth {w.max_depth_um:.1f} um, mean depth {w.mean_depth_um:.1f} um, "
+                  f"width {w.mean_width_mm:.3f} mm, volume {w.volume_mm3:.4f} mm3, severity {w.severity:.2f}")
+        t = measures.totals
+        print(f"total: {t['count']} wrinkle(s), {t['total_length_mm']:.2f} mm, area fraction {100 * t['area_fraction']:.1f}%")
+        print(f"wrote {Path(args.out).resolve()}")
+    return 0
+
+
 def cmd_calibrate_lights(args):
     from skintopo.calibration import calibrate_lights
 
@@ -481,6 +550,18 @@ def build_parser():
     measure.add_argument("-q", "--quiet", action="store_true")
     measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION,
                          integrator=DEFAULT_INTEGRATOR, solver="least-squares")
+
+    wrinkles = commands.add_parser("wrinkles", help="per-wrinkle measures: length, depth, width, volume, severity")
+    wrinkles.add_argument("input", type=Path, help="height map (.x3p, .npy) or an output folder holding height.x3p")
+    wrinkles.add_argument("-o", "--out", type=Path, required=True, help="output folder (wrinkles.csv, wrinkles.json, wrinkles_overlay.png)")
+    wrinkles.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
+    wrinkles.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM)
+    wrinkles.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM)
+    wrinkles.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM)
+    wrinkles.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM)
+    wrinkles.add_argument("--overwrite", action="store_true")
+    wrinkles.add_argument("-q", "--quiet", action="store_true")
+    wrinkles.set_defaults(handler=cmd_wrinkles)
 
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")

@@ -3,7 +3,7 @@
 The paper segments wrinkles on the Gaussian-filtered height map rather than on an image,
 because the height map does not over-segment. Steps:
 
-1. Band-pass the height with the ISO 16610-61 Gaussian: ``short_cutoff_um`` (lambda_s,
+1. Remove the least-squares quadratic form, then band-pass with the ISO 16610-61 Gaussian: ``short_cutoff_um`` (lambda_s,
    default 0.6 mm) removes the microrelief furrows (about 0.1 mm wide) and ``cutoff_um``
    (lambda_c, default 8 mm) removes the form (forehead curvature). The defaults were chosen
    on the simulator presets: they find every wrinkle of all three forehead states and none
@@ -31,13 +31,13 @@ from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import gaussian_bandpass
+from skintopo.filters import gaussian_bandpass, level
 from skintopo.heightmap import HeightMap
 
 DEFAULT_CUTOFF_UM = 8000.0
 DEFAULT_SHORT_CUTOFF_UM = 600.0
 DEFAULT_MIN_DEPTH_UM = 25.0
-DEFAULT_MIN_LENGTH_UM = 1000.0
+DEFAULT_MIN_LENGTH_UM = 1500.0
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
 
 
@@ -87,7 +87,10 @@ def segment_wrinkles(
     """Segment wrinkles in a height map (micrometres). See the module notes for the steps."""
     if min_depth_um <= 0 or min_length_um < 0:
         raise SkinTopoError(f"minimum depth must be positive and minimum length >= 0, got {min_depth_um}, {min_length_um}")
-    band = gaussian_bandpass(height, short_cutoff_um, cutoff_um)
+    # The least-squares quadratic form (a forehead's curvature) is removed first: near the
+    # field's edges the Gaussian regression cannot follow curvature, and its residual there
+    # would look like valleys.
+    band = gaussian_bandpass(level(height, order=2), short_cutoff_um, cutoff_um)
     valid = band.mask
     depth = np.where(valid, -band.z, 0.0)
     seeds = label((depth > min_depth_um) & valid)
@@ -104,12 +107,15 @@ def segment_wrinkles(
     keep = np.zeros(labels.max() + 1, dtype=bool)
     for region in regionprops(labels):
         keep[region.label] = region.axis_major_length * pixel >= min_length_um
-    labels = label(keep[labels] & regions)
-    lines = skeletonize(labels > 0)
-    # Full extent: each kept wrinkle's whole watershed basin (down to the background level).
+    kept = keep[labels] & regions
+    # Full extent: the watershed basins (down to the background level). Basins that touch
+    # belong to one wrinkle (a furrow crossing can split its seed in two): each connected
+    # group of basins holding a kept core is one wrinkle, and its cores share its id.
     basins = label((flooded >= 1) & (flooded <= n_seeds))
-    kept_basins = np.unique(basins[labels > 0])
-    extent = np.where(np.isin(basins, kept_basins[kept_basins > 0]), basins, 0)
+    kept_basins = np.unique(basins[kept])
+    extent = np.isin(basins, kept_basins[kept_basins > 0])
+    labels = np.where(kept, basins, 0)
+    lines = skeletonize(labels > 0)
     parameters = {
         "cutoff_um": cutoff_um,
         "short_cutoff_um": short_cutoff_um,
@@ -117,7 +123,18 @@ def segment_wrinkles(
         "min_length_um": min_length_um,
         "width_window_um": width_window_um,
     }
-    return WrinkleSegmentation(labels.astype(np.int32), lines, extent > 0, np.where(valid, depth, np.nan), parameters)
+    labels = _relabel(labels)
+    return WrinkleSegmentation(labels, lines, extent, np.where(valid, depth, np.nan), parameters)
+
+
+def _relabel(labels):
+    """Consecutive ids 1..n in order of first appearance (row-major)."""
+    values, first = np.unique(labels.ravel(), return_index=True)
+    order = values[np.argsort(first)]
+    order = order[order > 0]
+    lookup = np.zeros(int(labels.max()) + 1, dtype=np.int32)
+    lookup[order] = np.arange(1, order.size + 1)
+    return lookup[labels]
 
 
 def segmentation_quality(predicted_mask, true_mask):
