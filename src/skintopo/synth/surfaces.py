@@ -76,6 +76,7 @@ class SurfaceSpec:
     roughness_cutoff_px: float = 3.0
     form_radius_mm: float | None = 80.0
     microrelief: bool = True
+    shift_um: tuple = (0.0, 0.0)  # (x, y): the field sees the same skin displaced by this (a later visit)
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,20 +111,22 @@ class SkinSurface:
         return asdict(self.spec)
 
 
-def _coordinates(shape, pixel):
+def _coordinates(shape, pixel, shift=(0.0, 0.0)):
     rows, columns = shape
-    x = (np.arange(columns) - (columns - 1) / 2) * pixel
-    y = ((rows - 1) / 2 - np.arange(rows)) * pixel
+    x = (np.arange(columns) - (columns - 1) / 2) * pixel + shift[0]
+    y = ((rows - 1) / 2 - np.arange(rows)) * pixel + shift[1]
     return np.broadcast_to(x[None, :], shape), np.broadcast_to(y[:, None], shape)
 
 
 def microrelief_furrows(x, y, rng, *, plate_um, depth_um, width_um):
     """Polygonal furrow network on Voronoi edges; returns (z, p, q)."""
-    x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
-    margin = 2 * plate_um
-    area = (x1 - x0 + 2 * margin) * (y1 - y0 + 2 * margin)
-    count = max(4, int(area / plate_um**2))
-    seeds = np.column_stack([rng.uniform(x0 - margin, x1 + margin, count), rng.uniform(y0 - margin, y1 + margin, count)])
+    # Seeds over a region fixed in skin coordinates (the field's size about the origin, plus a
+    # margin of two plates and a quarter field), so a displaced view (a later visit with
+    # ``shift_um``) sees the same network.
+    half_width = (x.max() - x.min()) / 2 * 1.25 + 2 * plate_um
+    half_height = (y.max() - y.min()) / 2 * 1.25 + 2 * plate_um
+    count = max(4, int(4 * half_width * half_height / plate_um**2))
+    seeds = np.column_stack([rng.uniform(-half_width, half_width, count), rng.uniform(-half_height, half_height, count)])
     points = np.column_stack([x.ravel(), y.ravel()])
     _, nearest = cKDTree(seeds).query(points, k=6)
     own = seeds[nearest[:, 0]]
@@ -154,8 +157,9 @@ def microrelief_furrows(x, y, rng, *, plate_um, depth_um, width_um):
     return z.reshape(shape), grad[:, 0].reshape(shape), grad[:, 1].reshape(shape)
 
 
-def fractal_roughness(shape, pixel, rng, *, rms_um, hurst, cutoff_px):
-    """Fractional Brownian roughness by spectral synthesis; returns (z, p, q), exact slopes."""
+def fractal_roughness(shape, pixel, rng, *, rms_um, hurst, cutoff_px, shift_um=(0.0, 0.0)):
+    """Fractional Brownian roughness by spectral synthesis; returns (z, p, q), exact slopes.
+    ``shift_um`` displaces it exactly (a phase ramp; the synthesis is periodic)."""
     rows, columns = shape
     ky = 2 * np.pi * np.fft.fftfreq(rows)[:, None]  # rad per pixel along rows (downward)
     kx = 2 * np.pi * np.fft.rfftfreq(columns)[None, :]
@@ -163,6 +167,9 @@ def fractal_roughness(shape, pixel, rng, *, rms_um, hurst, cutoff_px):
     k[0, 0] = np.inf
     amplitude = k ** (-(hurst + 1.0)) * np.exp(-((k * cutoff_px / (2 * np.pi)) ** 2))
     spectrum = amplitude * (rng.standard_normal(k.shape) + 1j * rng.standard_normal(k.shape))
+    # the field sees skin coordinate x + shift: column c shows what column c + shift_x / pixel
+    # showed (rows run against y), a phase ramp exp(i k . offset) in the spectrum
+    spectrum = spectrum * np.exp(1j * (kx * shift_um[0] / pixel - ky * shift_um[1] / pixel))
     z = np.fft.irfft2(spectrum, s=shape)
     scale = rms_um / z.std() if z.std() > 0 else 0.0
     z *= scale
@@ -269,14 +276,15 @@ def make_surface(spec: SurfaceSpec, seed=0) -> SkinSurface:
     validate_spec(spec)
     rng = np.random.default_rng(seed)
     shape = tuple(spec.size_px)
-    x, y = _coordinates(shape, spec.pixel_um)
+    x, y = _coordinates(shape, spec.pixel_um, spec.shift_um)
     z = np.zeros(shape)
     p = np.zeros(shape)
     q = np.zeros(shape)
     if spec.microrelief:
         for component in (
             microrelief_furrows(x, y, rng, plate_um=spec.plate_um, depth_um=spec.furrow_depth_um, width_um=spec.furrow_width_um),
-            fractal_roughness(shape, spec.pixel_um, rng, rms_um=spec.roughness_rms_um, hurst=spec.hurst, cutoff_px=spec.roughness_cutoff_px),
+            fractal_roughness(shape, spec.pixel_um, rng, rms_um=spec.roughness_rms_um, hurst=spec.hurst,
+                              cutoff_px=spec.roughness_cutoff_px, shift_um=spec.shift_um),
         ):
             z += component[0]
             p += component[1]
