@@ -471,6 +471,63 @@ def cmd_wrinkles(args):
     return 0
 
 
+def cmd_compare(args):
+    import csv
+
+    from skintopo.compare import compare_visits, detection_limits
+    from skintopo.heightmap import HeightMap
+    from skintopo.texture import finite_or_none
+
+    inputs = [args.baseline, args.follow_up] + ([args.repeat] if args.repeat else [])
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=inputs)
+    baseline = _load_height_input(args.baseline, args.pixel_um)
+    follow_up = _load_height_input(args.follow_up, args.pixel_um)
+    options = _segmentation_options(args)
+    comparison = compare_visits(baseline, follow_up, allow_scale=args.allow_scale, segmentation_options=options)
+    limits = detection_limits(compare_visits(baseline, _load_height_input(args.repeat, args.pixel_um), segmentation_options=options)) if args.repeat else {}
+    rows = []
+    for name, record in comparison.texture.items():
+        rows.append({"parameter": name, **record, "detection_limit": limits.get(name)})
+    for name, record in comparison.totals.items():
+        rows.append({"parameter": f"wrinkles.{name}", **record, "detection_limit": None})
+    for wrinkle_id, record in comparison.wrinkles.items():
+        for name, change in record.items():
+            if isinstance(change, dict):
+                rows.append({"parameter": f"wrinkle{wrinkle_id}.{name}", **change, "detection_limit": limits.get(f"wrinkle{wrinkle_id}.{name}")})
+    for row in rows:
+        limit = row["detection_limit"]
+        row["detectable"] = None if limit is None else bool(abs(row["change"]) > limit)
+        for key in ("baseline", "follow_up", "change", "change_percent", "detection_limit"):
+            row[key] = finite_or_none(None if row[key] is None else float(row[key]))
+    registration = comparison.registration
+    summary = _summary("compare", args, baseline=Path(args.baseline).name, follow_up=Path(args.follow_up).name,
+                       repeat=Path(args.repeat).name if args.repeat else None,
+                       registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
+                                     "scale": registration.scale, "residual_misalignment_px": registration.residual_px},
+                       wrinkle_matches={str(k): v["follow_up_id"] for k, v in comparison.wrinkles.items()},
+                       units="um, mm, mm3, %; change = follow-up - baseline")
+    with staged_output_folder(args.out, overwrite=args.overwrite, inputs=inputs) as staging:
+        HeightMap(comparison.difference, baseline.spacing).save(staging / "difference.x3p")
+        write_json(staging / "changes.json", {"summary": summary, "changes": rows})
+        with open(staging / "changes.csv", "w", newline="", encoding="utf-8") as stream:
+            writer = csv.DictWriter(stream, fieldnames=["parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable"])
+            writer.writeheader()
+            writer.writerows(rows)
+    if not args.quiet:
+        print(f"registration: shift ({registration.shift_px[0]:+.2f}, {registration.shift_px[1]:+.2f}) px, rotation {registration.rotation_deg:+.3f} deg, "
+              f"residual misalignment {registration.residual_px:.3f} px")
+        if not comparison.wrinkles:
+            print("no wrinkles in the baseline: texture changes only")
+        for wrinkle_id, record in comparison.wrinkles.items():
+            if record["follow_up_id"] is None:
+                print(f"wrinkle {wrinkle_id}: not found in the follow-up")
+            else:
+                depth = record["max_depth_um"]
+                print(f"wrinkle {wrinkle_id} -> {record['follow_up_id']}: max depth {depth['baseline']:.1f} -> {depth['follow_up']:.1f} um ({depth['change_percent']:+.1f}%)")
+        print(f"wrote {Path(args.out).resolve()}")
+    return 0
+
+
 def cmd_calibrate_lights(args):
     from skintopo.calibration import calibrate_lights
 
@@ -562,6 +619,21 @@ def build_parser():
     wrinkles.add_argument("--overwrite", action="store_true")
     wrinkles.add_argument("-q", "--quiet", action="store_true")
     wrinkles.set_defaults(handler=cmd_wrinkles)
+
+    compare = commands.add_parser("compare", help="before/after: register two visits, difference map, change of every parameter")
+    compare.add_argument("baseline", type=Path, help="baseline height map (.x3p, .npy) or result folder with height.x3p")
+    compare.add_argument("follow_up", type=Path, metavar="after", help="follow-up height map or result folder")
+    compare.add_argument("-o", "--out", type=Path, required=True, help="output folder (difference.x3p, changes.csv, changes.json)")
+    compare.add_argument("--repeat", type=Path, help="a second baseline capture of the unchanged skin: gives detection limits")
+    compare.add_argument("--allow-scale", action="store_true", help="also fit a small scale change")
+    compare.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
+    compare.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM)
+    compare.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM)
+    compare.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM)
+    compare.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM)
+    compare.add_argument("--overwrite", action="store_true")
+    compare.add_argument("-q", "--quiet", action="store_true")
+    compare.set_defaults(handler=cmd_compare)
 
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")

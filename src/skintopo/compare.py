@@ -12,6 +12,14 @@ optionally a small scale), in two steps:
 
 The residual misalignment is measured afterwards: tile-wise phase correlation (4 x 4 tiles)
 between the baseline and the registered follow-up; its RMS, in pixels, is reported.
+
+Visits with different pixel sizes are refused (resampling silently would change every
+texture parameter); no overlap is refused; a visit with no wrinkles compares its texture and
+reports its wrinkles as unmatched.
+
+Repeatability: comparing two captures of the same unchanged skin gives each parameter's
+noise; :func:`detection_limits` turns one such pair into the smallest detectable change,
+2 sigma with sigma = |repeat difference| / sqrt(2).
 """
 
 from __future__ import annotations
@@ -137,3 +145,88 @@ def residual_misalignment(fixed, moving, tiles=4):
             if a.std() > 0 and b.std() > 0:
                 shifts.append(phase_cross_correlation(a, b, upsample_factor=20)[0])
     return float(np.sqrt(np.mean(np.sum(np.square(shifts), axis=1)))) if shifts else float("nan")
+
+
+def _change(before, after):
+    change = after - before
+    with np.errstate(invalid="ignore", divide="ignore"):
+        percent = 100.0 * change / abs(before) if before not in (0, None) and np.isfinite(before) else float("nan")
+    return {"baseline": before, "follow_up": after, "change": change, "change_percent": percent}
+
+
+def match_wrinkles(baseline_labels, follow_up_labels, min_overlap=0.2):
+    """Baseline id -> follow-up id by the largest overlap of their half-depth regions (as a
+    fraction of the smaller region, at least ``min_overlap``); unmatched ids map to None."""
+    matches = {}
+    for index in range(1, int(baseline_labels.max()) + 1):
+        region = baseline_labels == index
+        counts = np.bincount(follow_up_labels[region], minlength=int(follow_up_labels.max()) + 1)
+        counts[0] = 0
+        best = int(counts.argmax())
+        if best and counts[best] >= min_overlap * min(region.sum(), (follow_up_labels == best).sum()):
+            matches[index] = best
+        else:
+            matches[index] = None
+    return matches
+
+
+@dataclass(frozen=True, eq=False)
+class Comparison:
+    """Everything ``skintopo compare`` reports."""
+
+    registration: Registration
+    difference: np.ndarray  # follow-up - baseline (um), plane removed, NaN outside the overlap
+    texture: dict  # name -> change record
+    wrinkles: dict  # baseline id -> {"follow_up_id", measure -> change record}
+    totals: dict  # wrinkle field totals -> change record
+    baseline_wrinkles: object
+    follow_up_wrinkles: object
+
+
+def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None) -> Comparison:
+    """Register ``follow_up`` onto ``baseline`` and report every change (see the module notes).
+
+    Texture parameters are computed on the common overlap of both visits; wrinkles are
+    segmented in each visit independently and matched by overlap after registration.
+    """
+    from skintopo.evaluation import height_difference
+    from skintopo.segmentation import segment_wrinkles
+    from skintopo.texture import measure_texture, parameters_by_name
+    from skintopo.wrinkles import measure_wrinkles
+
+    aligned, registration = register_visits(baseline, follow_up, allow_scale=allow_scale)
+    common = baseline.mask & aligned.mask
+    if common.sum() < 0.25 * baseline.mask.sum():
+        raise SkinTopoError(f"the registered visits overlap on only {common.mean():.0%} of the field: too little to compare")
+    before = HeightMap(baseline.z, baseline.spacing, common)
+    after = HeightMap(aligned.z, baseline.spacing, common)
+    difference = height_difference(after, before)
+    texture_before = parameters_by_name(measure_texture(before))
+    texture_after = parameters_by_name(measure_texture(after))
+    texture = {name: _change(texture_before[name], texture_after[name]) for name in texture_before}
+    options = segmentation_options or {}
+    wrinkles_before = measure_wrinkles(before, segment_wrinkles(before, **options))
+    wrinkles_after = measure_wrinkles(after, segment_wrinkles(after, **options))
+    matches = match_wrinkles(wrinkles_before.labels, wrinkles_after.labels)
+    per_wrinkle = {}
+    fields = ("length_mm", "mean_depth_um", "max_depth_um", "mean_width_mm", "volume_mm3", "severity")
+    for wrinkle in wrinkles_before.wrinkles:
+        partner = matches.get(wrinkle.id)
+        record = {"follow_up_id": partner}
+        if partner is not None:
+            other = wrinkles_after.wrinkles[partner - 1]
+            record.update({name: _change(getattr(wrinkle, name), getattr(other, name)) for name in fields})
+        per_wrinkle[wrinkle.id] = record
+    totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals}
+    return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after)
+
+
+def detection_limits(repeat: Comparison):
+    """Smallest detectable change per parameter from one repeat pair of unchanged skin:
+    each repeat difference d estimates sqrt(2) sigma, and the limit is 2 sigma = sqrt(2) |d|."""
+    limits = {name: float(np.sqrt(2) * abs(record["change"])) for name, record in repeat.texture.items()}
+    for wrinkle_id, record in repeat.wrinkles.items():
+        for name, change in record.items():
+            if isinstance(change, dict):
+                limits[f"wrinkle{wrinkle_id}.{name}"] = float(np.sqrt(2) * abs(change["change"]))
+    return limits

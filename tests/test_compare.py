@@ -1,0 +1,99 @@
+"""Visit registration and before/after comparison on simulated visits."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import scipy.ndimage
+
+from skintopo.cli import main
+from skintopo.compare import compare_visits, detection_limits, register_visits
+from skintopo.errors import SkinTopoError
+from skintopo.height import integrate_normals
+from skintopo.heightmap import HeightMap
+from skintopo.normals import photometric_stereo
+from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+
+
+def transformed_view(big, size, offset, angle_deg, shift):
+    """The view x_f = R (x_b - c) + c - t of a larger map (the registration's convention)."""
+    rows, columns = np.mgrid[:size, :size].astype(float)
+    centre = (size - 1) / 2
+    theta = np.radians(angle_deg)
+    rotation = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]])
+    points = np.stack([rows - centre + shift[0], columns - centre + shift[1]])
+    source = np.tensordot(np.linalg.inv(rotation), points, axes=1) + centre + offset
+    return scipy.ndimage.map_coordinates(big, source, order=3, mode="nearest")
+
+
+@pytest.mark.parametrize("angle, shift", [(3.7, (1.3, -2.6)), (-5.0, (0.4, 0.7)), (0.8, (-3.25, 2.1))])
+def test_registration_recovers_subpixel_shift_and_rotation(angle, shift):
+    big = make_surface(preset_spec("forehead-moderate", size_px=384), seed=3).height.z
+    baseline = HeightMap(transformed_view(big, 256, 64, 0.0, (0, 0)), 20.0)
+    follow_up = HeightMap(transformed_view(big, 256, 64, angle, shift), 20.0)
+    _, registration = register_visits(baseline, follow_up)
+    print(f"true ({shift[0]}, {shift[1]}) px, {angle} deg -> ({registration.shift_px[0]:.3f}, {registration.shift_px[1]:.3f}) px, "
+          f"{registration.rotation_deg:.4f} deg, residual {registration.residual_px:.3f} px")
+    assert np.allclose(registration.shift_px, shift, atol=0.1)
+    assert registration.rotation_deg == pytest.approx(angle, abs=0.05)
+
+
+def visit(spec, noise_seed):
+    surface = make_surface(spec, seed=5)
+    bands, _ = simulate_acquisition(surface, default_settings(), seed=noise_seed)
+    stereo = photometric_stereo(*bands["white"])
+    return integrate_normals(stereo.normals, spec.pixel_um, mask=stereo.valid)
+
+
+@pytest.mark.slow
+def test_treatment_of_one_wrinkle_is_detected_and_repeats_are_near_zero():
+    spec = preset_spec("forehead-moderate", size_px=256)
+    baseline = visit(spec, 1)
+    repeat = visit(dataclasses.replace(spec, shift_um=(30.0, -25.0)), 2)  # same skin, new noise, moved
+    wrinkles = list(spec.wrinkles)
+    wrinkles[1] = dataclasses.replace(wrinkles[1], depth_um=0.7 * wrinkles[1].depth_um)  # treated: 30% shallower
+    treated = visit(dataclasses.replace(spec, wrinkles=tuple(wrinkles), shift_um=(-20.0, 35.0)), 3)
+    repeat_comparison = compare_visits(baseline, repeat)
+    limits = detection_limits(repeat_comparison)
+    comparison = compare_visits(baseline, treated)
+    for label, c in (("repeat", repeat_comparison), ("treated", comparison)):
+        for wrinkle_id, record in c.wrinkles.items():
+            print(label, wrinkle_id, "->", record["follow_up_id"], {k: f"{v['change_percent']:+.1f}%" for k, v in record.items() if isinstance(v, dict)})
+    # repeats: every wrinkle found again, depth changes near zero
+    for record in repeat_comparison.wrinkles.values():
+        assert record["follow_up_id"] is not None and abs(record["max_depth_um"]["change_percent"]) < 3
+    # treatment: the second wrinkle (baseline id 2, top to bottom) -30% +- 5%, the others within the repeat band
+    assert comparison.wrinkles[2]["max_depth_um"]["change_percent"] == pytest.approx(-30, abs=5)
+    # (one repeat pair is a noisy estimate of the band: a floor of 3% of the depth is allowed)
+    for wrinkle_id in (1, 3):
+        change = comparison.wrinkles[wrinkle_id]["max_depth_um"]["change"]
+        assert abs(change) <= max(limits[f"wrinkle{wrinkle_id}.max_depth_um"], 0.03 * comparison.wrinkles[wrinkle_id]["max_depth_um"]["baseline"])
+    print("smallest detectable change of max depth (um):", {k: round(v, 2) for k, v in limits.items() if k.endswith("max_depth_um")})
+
+
+def test_compare_command_and_bad_inputs(tmp_path, capsys):
+    spec = preset_spec("forehead-moderate", size_px=160)
+    make_surface(spec, seed=2).height.save(tmp_path / "a.x3p")
+    make_surface(dataclasses.replace(spec, shift_um=(25.0, 10.0)), seed=2).height.save(tmp_path / "b.x3p")
+    assert main(["compare", str(tmp_path / "a.x3p"), str(tmp_path / "b.x3p"), "-o", str(tmp_path / "c")]) == 0
+    data = json.loads((tmp_path / "c" / "changes.json").read_text())
+    matches = data["summary"]["wrinkle_matches"]
+    assert len(matches) >= 2 and all(int(k) == v for k, v in matches.items())  # the same skin, moved: every wrinkle matched
+    assert data["summary"]["registration"]["shift_px"] == pytest.approx([-0.5, 1.25], abs=0.1)
+    assert (tmp_path / "c" / "difference.x3p").exists() and "registration:" in capsys.readouterr().out
+    # different pixel sizes: refused
+    make_surface(dataclasses.replace(spec, pixel_um=25.0), seed=2).height.save(tmp_path / "coarse.x3p")
+    assert main(["compare", str(tmp_path / "a.x3p"), str(tmp_path / "coarse.x3p"), "-o", str(tmp_path / "d")]) == 2
+    assert "different pixel sizes (20 and 25 um): refusing" in capsys.readouterr().err
+    # no overlap (another person's skin): refused
+    make_surface(spec, seed=99).height.save(tmp_path / "other.x3p")
+    with pytest.raises(SkinTopoError, match="do not overlap"):
+        register_visits(HeightMap.load(tmp_path / "a.x3p"), HeightMap(np.random.default_rng(0).normal(size=(160, 160)), 20.0))
+    # no wrinkles: texture only, clear message
+    flat = preset_spec("flat-microrelief", size_px=160)
+    make_surface(flat, seed=1).height.save(tmp_path / "f1.x3p")
+    make_surface(dataclasses.replace(flat, shift_um=(15.0, 0.0)), seed=1).height.save(tmp_path / "f2.x3p")
+    assert main(["compare", str(tmp_path / "f1.x3p"), str(tmp_path / "f2.x3p"), "-o", str(tmp_path / "e")]) == 0
+    assert "no wrinkles in the baseline" in capsys.readouterr().out
+    assert not (tmp_path / "d").exists()
