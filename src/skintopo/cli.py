@@ -545,6 +545,17 @@ def cmd_calibrate_lights(args):
     return 0
 
 
+def _add_segmentation_options(parser):
+    parser.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM,
+                        help=f"lambda_c of the segmentation band-pass (default {DEFAULT_CUTOFF_UM:g})")
+    parser.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM,
+                        help=f"lambda_s (default {DEFAULT_SHORT_CUTOFF_UM:g})")
+    parser.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM,
+                        help=f"shallowest wrinkle (default {DEFAULT_MIN_DEPTH_UM:g})")
+    parser.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM,
+                        help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="skintopo", description="3D skin topography by multispectral photometric stereo.")
     parser.add_argument("--version", action="version", version=f"skintopo {__version__}")
@@ -566,10 +577,7 @@ def build_parser():
     correct.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     correct.add_argument("--method", choices=["paper", "feathered"], default="paper", help="correction variant (default paper)")
     correct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR)
-    correct.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM, help=f"lambda_c of the segmentation band-pass (default {DEFAULT_CUTOFF_UM:g})")
-    correct.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM, help=f"lambda_s (default {DEFAULT_SHORT_CUTOFF_UM:g})")
-    correct.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM, help=f"shallowest wrinkle (default {DEFAULT_MIN_DEPTH_UM:g})")
-    correct.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM, help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
+    _add_segmentation_options(correct)
     correct.add_argument("--overwrite", action="store_true")
     correct.add_argument("-q", "--quiet", action="store_true")
     correct.set_defaults(handler=cmd_correct)
@@ -612,10 +620,7 @@ def build_parser():
     wrinkles.add_argument("input", type=Path, help="height map (.x3p, .npy) or an output folder holding height.x3p")
     wrinkles.add_argument("-o", "--out", type=Path, required=True, help="output folder (wrinkles.csv, wrinkles.json, wrinkles_overlay.png)")
     wrinkles.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
-    wrinkles.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM)
-    wrinkles.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM)
-    wrinkles.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM)
-    wrinkles.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM)
+    _add_segmentation_options(wrinkles)
     wrinkles.add_argument("--overwrite", action="store_true")
     wrinkles.add_argument("-q", "--quiet", action="store_true")
     wrinkles.set_defaults(handler=cmd_wrinkles)
@@ -627,10 +632,7 @@ def build_parser():
     compare.add_argument("--repeat", type=Path, help="a second baseline capture of the unchanged skin: gives detection limits")
     compare.add_argument("--allow-scale", action="store_true", help="also fit a small scale change")
     compare.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
-    compare.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM)
-    compare.add_argument("--short-cutoff-um", type=_positive_float, default=DEFAULT_SHORT_CUTOFF_UM)
-    compare.add_argument("--min-depth-um", type=_positive_float, default=DEFAULT_MIN_DEPTH_UM)
-    compare.add_argument("--min-length-um", type=_positive_float, default=DEFAULT_MIN_LENGTH_UM)
+    _add_segmentation_options(compare)
     compare.add_argument("--overwrite", action="store_true")
     compare.add_argument("-q", "--quiet", action="store_true")
     compare.set_defaults(handler=cmd_compare)
