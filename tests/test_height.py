@@ -158,6 +158,6 @@ class TestHeightMap:
         with pytest.raises(SkinTopoError, match="unknown height map format"):
             HeightMap(np.ones((2, 2)), 1.0).save(tmp_path / "h.bmp")
         (tmp_path / "bad.x3p").write_bytes(b"not a zip")
-        with pytest.raises(SkinTopoError, match="bad.x3p: not a readable x3p"):
+        with pytest.raises(SkinTopoError, match="bad.x3p: not a readable .x3p height map"):
             HeightMap.load(tmp_path / "bad.x3p")
         assert not list(tmp_path.glob("*.part"))

@@ -1,5 +1,5 @@
 """The :class:`HeightMap` type: heights in micrometres with the pixel spacing and mask that
-give them meaning, and its storage in ISO 25178-72 (x3p) and NumPy files.
+give them meaning; storage through :mod:`skintopo.formats`.
 
 It is a plain data type shared by every stage from height integration onward; it holds no
 processing code.
@@ -7,17 +7,12 @@ processing code.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from skintopo.errors import SkinTopoError
-from skintopo.outputs import current_umask
 
-METRES_PER_MICROMETRE = 1e-6
 
 
 def _read_only(array):
@@ -81,75 +76,26 @@ class HeightMap:
         return (self.shape[0] * self.spacing[0], self.shape[1] * self.spacing[1])
 
     def save(self, path):
-        """Write the height map to ``.x3p`` (ISO 25178-72, metres inside the file) or ``.npy``.
+        """Write the height map; the format follows the extension (``.x3p``, ``.sdf``,
+        ``.gwy``, ``.tif``, ``.npy``, and meshes ``.ply`` / ``.stl``): see
+        :mod:`skintopo.formats`. Written to a temporary name and renamed into place, so a
+        failed write never leaves a half-written file."""
+        from skintopo.formats import write_height
 
-        A ``.npy`` file holds only the heights in micrometres (NaN where invalid); the pixel
-        spacing must be given again when it is loaded. The file is written to a temporary name
-        and renamed into place, so a failed write never leaves a half-written file.
-        """
-        path = Path(path)
-        suffix = path.suffix.lower()
-        if suffix not in (".x3p", ".npy"):
-            raise SkinTopoError(f"{path}: unknown height map format {suffix!r} (use .x3p or .npy)")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        handle, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-        try:
-            with os.fdopen(handle, "wb") as stream:
-                if suffix == ".npy":
-                    np.save(stream, self.z)
-                else:
-                    import x3pio
-
-                    # Record2 holds only the software and the UTC time: nothing about the subject.
-                    x3pio.write(
-                        stream,
-                        self.z * METRES_PER_MICROMETRE,
-                        x_scale=self.spacing[1] * METRES_PER_MICROMETRE,
-                        y_scale=self.spacing[0] * METRES_PER_MICROMETRE,
-                    )
-            os.chmod(tmp, 0o666 & ~current_umask())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_height(path, self.z, self.spacing)
 
     @classmethod
     def load(cls, path, *, pixel_um=None):
-        """Read a height map from ``.x3p`` or ``.npy``.
+        """Read a height map (``.x3p``, ``.sdf``, ``.gwy``, ``.tif``, ``.npy``).
 
         Parameters
         ----------
         path : str or Path
         pixel_um : float, optional
-            Pixel size in micrometres; required for ``.npy`` (which stores none), and for
-            ``.x3p`` it must agree with the file if given.
+            Pixel size in micrometres; required for ``.npy`` and float TIFF (which store
+            none), and for the others it must agree with the file if given.
         """
-        path = Path(path)
-        if not path.is_file():
-            raise SkinTopoError(f"{path}: no such file")
-        suffix = path.suffix.lower()
-        if suffix == ".npy":
-            if pixel_um is None:
-                raise SkinTopoError(f"{path}: a .npy height map carries no pixel size; give it (pixel_um / --pixel-um)")
-            try:
-                z = np.load(path, allow_pickle=False)
-            except ValueError as exc:
-                raise SkinTopoError(f"{path}: not a readable .npy array ({exc})") from None
-            if z.ndim != 2 or not np.issubdtype(z.dtype, np.number):
-                raise SkinTopoError(f"{path}: expected a 2-D numeric array, got {z.dtype} of shape {z.shape}")
-            return cls(z, pixel_um)
-        if suffix == ".x3p":
-            import x3pio
+        from skintopo.formats import read_height
 
-            try:
-                surface = x3pio.read(path)
-            except (x3pio.X3pError, OSError, ValueError) as exc:
-                raise SkinTopoError(f"{path}: not a readable x3p file ({exc})") from None
-            if not isinstance(surface, x3pio.Surface) or not surface.is_regular_grid:
-                raise SkinTopoError(f"{path}: the x3p file is not a surface on a regular grid")
-            layer = surface.layers[0]
-            dx, dy = (float(s) / METRES_PER_MICROMETRE for s in layer.spacing[:2])
-            if pixel_um is not None and not np.isclose(pixel_um, dx, rtol=1e-6):
-                raise SkinTopoError(f"{path}: pixel size in the file is {dx:g} um, not {pixel_um:g} um as given")
-            return cls(np.asarray(layer.z, dtype=np.float64) / METRES_PER_MICROMETRE, (dy, dx))
-        raise SkinTopoError(f"{path}: unknown height map format {suffix!r} (use .x3p or .npy)")
+        z, spacing = read_height(path, pixel_um)
+        return cls(z, spacing)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.errors import SkinTopoError
+from skintopo.formats import atomic_write, current_umask
 
 
 def check_output_folder(out, *, overwrite=False, inputs=()):
@@ -55,13 +56,6 @@ def staged_output_folder(out, *, overwrite=False, inputs=()):
         raise
 
 
-def current_umask():
-    """The process umask (read by setting and restoring it), for files made via tempfile."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def _json_default(value):
     if isinstance(value, np.generic):
         return value.item()
@@ -79,17 +73,7 @@ def write_json(path, data):
 
 def write_json_atomic(path, data):
     """Write JSON to a temporary file beside ``path`` and rename it into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-    os.close(handle)
-    try:
-        write_json(tmp, data)
-        os.chmod(tmp, 0o666 & ~current_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: write_json(tmp, data))
 
 
 def write_label_image(path, labels):

@@ -1,0 +1,66 @@
+"""Height map formats: round trips and files readable by the other packages."""
+
+import numpy as np
+import pytest
+
+from skintopo.errors import SkinTopoError
+from skintopo.heightmap import HeightMap
+
+
+def sample():
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(30, 40)).cumsum(axis=1) * 3.0
+    z[4, 5] = np.nan
+    return HeightMap(z, (12.5, 10.0))
+
+
+@pytest.mark.parametrize("suffix, tolerance", [(".x3p", 1e-12), (".sdf", 1e-12), (".gwy", 1e-12), (".npy", 0.0), (".tif", None)])
+def test_round_trip(tmp_path, suffix, tolerance):
+    height = sample()
+    path = tmp_path / f"h{suffix}"
+    height.save(path)
+    back = HeightMap.load(path, pixel_um=10.0 if suffix == ".npy" else None)
+    np.testing.assert_array_equal(back.mask, height.mask)
+    if tolerance is None:  # 16-bit TIFF: within half a quantisation step of (max - min) / 65534
+        step = np.nanmax(height.z) - np.nanmin(height.z)
+        assert np.nanmax(np.abs(back.z - height.z)) <= 0.5 * step / 65534 + 1e-9
+    else:
+        np.testing.assert_allclose(back.z, height.z, rtol=tolerance, atol=tolerance, equal_nan=True)
+    if suffix != ".npy":
+        assert back.spacing == pytest.approx(height.spacing)
+
+
+def test_files_are_readable_by_the_other_packages(tmp_path):
+    import gwyfile
+    import sdfio
+    import x3pio
+
+    height = sample()
+    for suffix in (".x3p", ".sdf", ".gwy"):
+        height.save(tmp_path / f"h{suffix}")
+    np.testing.assert_allclose(x3pio.read(tmp_path / "h.x3p").layers[0].z, height.z * 1e-6, equal_nan=True)
+    sdf = sdfio.read(tmp_path / "h.sdf")
+    np.testing.assert_allclose(sdf.data, height.z * 1e-6, equal_nan=True)
+    assert sdf.header.x_scale == pytest.approx(10e-6) and sdf.header.y_scale == pytest.approx(12.5e-6)
+    field = gwyfile.load(str(tmp_path / "h.gwy"))["/0/data"]
+    assert field.data.shape == (30, 40) and field["xreal"] == pytest.approx(40 * 10e-6)
+
+
+def test_meshes(tmp_path):
+    import trimesh
+
+    height = sample()
+    for suffix in (".ply", ".stl"):
+        height.save(tmp_path / f"h{suffix}")
+        mesh = trimesh.load(tmp_path / f"h{suffix}")
+        assert len(mesh.faces) == 2 * (29 * 39 - 4)  # the missing point removes the 4 cells around it
+        assert mesh.bounds[1][0] == pytest.approx(39 * 10e-3)  # millimetres
+
+
+def test_bad_formats(tmp_path):
+    with pytest.raises(SkinTopoError, match="unknown height map format '.bmp'"):
+        sample().save(tmp_path / "h.bmp")
+    (tmp_path / "h.sdf").write_bytes(b"garbage")
+    with pytest.raises(SkinTopoError, match="h.sdf: not a readable .sdf height map"):
+        HeightMap.load(tmp_path / "h.sdf")
+    assert not list(tmp_path.glob("*.part"))
