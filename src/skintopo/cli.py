@@ -7,6 +7,7 @@ clear message, exit status 2, without a traceback.
 from __future__ import annotations
 
 import argparse
+import base64
 import hashlib
 import platform
 import sys
@@ -273,10 +274,13 @@ def cmd_demo(args):
         }
         result_folder = staging / "result"
         result_folder.mkdir()
-        correction.height.save(result_folder / "height.x3p")
-        write_label_image(result_folder / "wrinkles.png", correction.segmentation.labels)
         for band, result in results.items():
             _write_band_outputs(result_folder / band, result)
+        args.region, args.level, args.p, args.q = [], 1, 10.0, 80.0
+        source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
+                  "height": "spectral correction (paper)"}
+        _write_measurements(result_folder, args, correction.height, results["red"].stereo.albedo, source,
+                            title=f"skintopo demo: simulated {args.preset}, {args.skin} skin", evaluations=evaluations)
         summary = _summary(
             "demo", args, acquisition, preset=args.preset, skin=args.skin, seed=args.seed,
             segmentation=segmentation_quality(correction.segmentation.mask, surface.wrinkle_labels > 0)
@@ -294,6 +298,7 @@ def cmd_demo(args):
             )
         seg = summary["segmentation"]
         print(f"\nwrinkles segmented: {seg['wrinkles_found']} of {seg['wrinkles_true']} (IoU {seg['iou']:.2f} with the true half-depth regions)")
+        print(f"report: {(Path(args.out) / 'result' / 'report.html').resolve()}")
         print(f"wrote {Path(args.out).resolve()} in {summary['seconds_total']:.1f} s")
     return 0
 
@@ -323,53 +328,86 @@ def _crop(height, box, name):
 
 
 def _measured_height(args):
-    """The height map to measure: a height file as it is, or an acquisition run through the
-    paper's method (corrected height when red, green and blue are present, else white or
-    the only band)."""
-    from skintopo.heightmap import HeightMap
-
+    """The height map to measure and its albedo: a height file as it is, or an acquisition
+    run through the paper's method (corrected height when red, green and blue are present,
+    else white or the only band)."""
     path = Path(args.input)
     if path.is_file():
-        return HeightMap.load(path, pixel_um=args.pixel_um), {"input": path.name, "kind": "height map"}
+        return _load_height_input(path, args.pixel_um), None, {"input": path.name, "kind": "height map"}
     from skintopo.correction import REQUIRED_BANDS, spectral_correction
 
     args.acquisition = path
     acquisition = _load(args, None)
     results = _reconstruct_all(args, acquisition)
+    albedo_band = "red" if "red" in results else next(iter(results))
+    albedo = results[albedo_band].stereo.albedo
+    source = {"input": path.name, "kind": "acquisition", "acquisition": _acquisition_summary(acquisition)}
     if all(b in results for b in REQUIRED_BANDS):
         correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um, mask=acquisition.mask)
-        return correction.height, {"input": path.name, "kind": "acquisition", "height": "spectral correction (paper)", "wrinkles_found": correction.segmentation.count}
+        return correction.height, albedo, source | {"height": "spectral correction (paper)"}
     band = "white" if "white" in results else next(iter(results))
-    return results[band].height, {"input": path.name, "kind": "acquisition", "height": f"{band} band"}
+    return results[band].height, albedo, source | {"height": f"{band} band"}
 
 
-def cmd_measure(args):
+def _write_measurements(staging, args, height, albedo, source, *, title, evaluations=None):
+    """Texture, fractal and wrinkle measures of ``height`` into ``staging``, with the report."""
     import csv
+    from dataclasses import asdict
 
+    from skintopo.report import build_report
+    from skintopo.segmentation import segment_wrinkles
     from skintopo.texture import finite_or_none, measure_texture
+    from skintopo.wrinkles import measure_wrinkles
 
-    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
-    started = time.perf_counter()
-    height, source = _measured_height(args)
     regions = {"field": height} | {name: _crop(height, box, name) for name, box in args.region}
-    measured = {name: measure_texture(region, level_order=args.level, p=args.p, q=args.q) for name, region in regions.items()}
+    fractal_results = []
+    measured = {}
+    for name, region in regions.items():
+        measured[name] = measure_texture(region, level_order=args.level, p=args.p, q=args.q,
+                                         fractal_results=fractal_results if name == "field" else None)
     rows = [
         {"region": name, "name": p.name, "value": finite_or_none(p.value), "unit": p.unit, "reference": p.reference}
         for name, parameters in measured.items()
         for p in parameters
     ]
-    summary = _summary("measure", args, source=source, options={"level_order": args.level, "p": args.p, "q": args.q}, units="um unless stated")
+    segmentation = segment_wrinkles(height)
+    wrinkles = measure_wrinkles(height, segmentation)
+    settings = {"source": source, "level_order": args.level, "p": args.p, "q": args.q, "segmentation": segmentation.parameters,
+                "solver": getattr(args, "solver", None), "skintopo_version": __version__}
+    summary = _summary("measure", args, source=source, options=settings, units="um unless stated",
+                       wrinkle_totals=wrinkles.totals, evaluation=evaluations)
+    write_json(staging / "parameters.json", {"summary": summary, "parameters": rows})
+    with open(staging / "parameters.csv", "w", newline="", encoding="utf-8") as stream:
+        writer = csv.DictWriter(stream, fieldnames=["region", "name", "value", "unit", "reference"])
+        writer.writeheader()
+        writer.writerows(rows)
+    write_json(staging / "wrinkles.json", wrinkles.as_dict())
+    with open(staging / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
+        fields = list(asdict(wrinkles.wrinkles[0]).keys()) if wrinkles.wrinkles else ["id"]
+        writer = csv.DictWriter(stream, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(asdict(w) for w in wrinkles.wrinkles)
+    height.save(staging / "height.x3p")
+    write_label_image(staging / "wrinkles.png", wrinkles.labels)
+    write_json(staging / "summary.json", summary)
+    report = build_report(title=title, height=height, albedo=albedo, parameters=measured["field"], fractal_results=fractal_results,
+                          wrinkles=wrinkles, evaluations=evaluations, settings=settings)
+    (staging / "report.html").write_text(report, encoding="utf-8")
+    return rows, wrinkles
+
+
+def cmd_measure(args):
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
+    started = time.perf_counter()
+    height, albedo, source = _measured_height(args)
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        write_json(staging / "parameters.json", {"summary": summary, "parameters": rows})
-        with open(staging / "parameters.csv", "w", newline="", encoding="utf-8") as stream:
-            writer = csv.DictWriter(stream, fieldnames=["region", "name", "value", "unit", "reference"])
-            writer.writeheader()
-            writer.writerows(rows)
+        rows, wrinkles = _write_measurements(staging, args, height, albedo, source, title=f"skintopo: {Path(args.input).name}")
     if not args.quiet:
         print(f"{'region':<10} {'parameter':<24} {'value':>14} unit")
         for row in rows:
             value = "NaN" if row["value"] is None else f"{row['value']:14.5g}"
             print(f"{row['region']:<10} {row['name']:<24} {value:>14} {row['unit']}")
+        print(f"{wrinkles.totals['count']} wrinkle(s); report: {(Path(args.out) / 'report.html').resolve()}")
         print(f"wrote {Path(args.out).resolve()} in {time.perf_counter() - started:.1f} s")
     return 0
 
@@ -414,34 +452,11 @@ def _load_height_input(path, pixel_um):
     return HeightMap.load(path, pixel_um=pixel_um)
 
 
-def write_wrinkle_overlay(path, height, measures):
-    """Shaded height with the wrinkles' half-depth regions, centre lines and ids (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LightSource
-
-    z = np.where(height.mask, height.z, np.nanmedian(height.z))
-    shaded = LightSource(azdeg=315, altdeg=45).hillshade(z, dx=height.spacing[1], dy=height.spacing[0])
-    rows, columns = height.shape
-    figure, axes = plt.subplots(figsize=(8, 8 * rows / columns))
-    extent = (0, columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000, 0)
-    axes.imshow(shaded, cmap="gray", extent=extent)
-    axes.imshow(np.ma.masked_equal(measures.labels, 0), cmap="tab10", alpha=0.35, extent=extent, interpolation="nearest")
-    axes.imshow(np.ma.masked_equal(measures.lines.astype(int), 0), cmap="autumn", extent=extent, interpolation="nearest")
-    for wrinkle in measures.wrinkles:
-        axes.text(wrinkle.centroid_x_mm, wrinkle.centroid_y_mm, str(wrinkle.id), color="yellow", fontsize=14, weight="bold", ha="center", va="center")
-    axes.set(xlabel="x (mm)", ylabel="y (mm, image rows)", title=f"{len(measures.wrinkles)} wrinkle(s)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-
-
 def cmd_wrinkles(args):
     import csv
     from dataclasses import asdict
 
+    from skintopo.report import wrinkle_overlay_png
     from skintopo.segmentation import segment_wrinkles
     from skintopo.wrinkles import measure_wrinkles
 
@@ -457,7 +472,7 @@ def cmd_wrinkles(args):
             writer = csv.DictWriter(stream, fieldnames=fields)
             writer.writeheader()
             writer.writerows(asdict(w) for w in measures.wrinkles)
-        write_wrinkle_overlay(staging / "wrinkles_overlay.png", height, measures)
+        (staging / "wrinkles_overlay.png").write_bytes(base64.b64decode(wrinkle_overlay_png(height, measures)))
         write_label_image(staging / "wrinkles.png", measures.labels)
     if not args.quiet:
         if not measures.wrinkles:

@@ -48,7 +48,7 @@ class Parameter:
     reference: str
 
 
-def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS):
+def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS, fractal_results=None):
     """All areal parameters and fractal dimensions of a height map, in one call.
 
     Parameters
@@ -62,6 +62,9 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
         Material ratios (%) of the volume parameters (ISO defaults 10 and 80).
     fractal_methods : sequence of str
         Estimators to run (default the four Gwyddion ones).
+    fractal_results : list, optional
+        If given, each estimator's :class:`~skintopo.texture.fractal.FractalResult` (with its
+        log-log points, for plotting) is appended to it.
 
     Returns
     -------
@@ -82,6 +85,8 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     resampled = resample_for_fractal(surface) if fractal_methods else None
     for method in fractal_methods:
         result = fractal_dimension(surface, method, resampled)
+        if fractal_results is not None:
+            fractal_results.append(result)
         parameters.append(Parameter(f"D_{method}", result.dimension, "", f"fractal dimension, {method} (Gwyddion definition)" if method in FRACTAL_METHODS else f"fractal dimension, {method}"))
     return parameters
 

@@ -1,0 +1,59 @@
+"""The measure command's outputs and the HTML report, opened in headless Chromium."""
+
+import json
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from skintopo.cli import main
+from skintopo.heightmap import HeightMap
+from skintopo.report import build_report
+from skintopo.synth import make_surface, preset_spec
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def test_report_is_self_contained_and_escapes_user_text():
+    z = make_surface(preset_spec("forehead-low", size_px=96), seed=1).height.z.copy()
+    z[10:20, 10:20] = np.nan
+    title = "<script>alert('x')</script> & patient"
+    page = build_report(title=title, height=HeightMap(z, 20.0), settings={"note": "</script><b>bold</b>"})
+    assert "<script>alert" not in page and "&lt;script&gt;alert" in page
+    assert "</script><b>" not in page
+    assert not re.search(r"(src|href)=['\"]?(https?:)?//", page)  # nothing loaded from anywhere
+    assert "http://" not in page and "https://" not in page
+    assert "default-src 'none'" in page
+    assert "null" in page  # missing points travel as null (shown as gaps), never as zeros
+
+
+@pytest.mark.slow
+def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
+    acquisition = tmp_path / "acq"
+    assert main(["synth", "-o", str(acquisition), "--preset", "forehead-moderate", "--size", "160", "-q"]) == 0
+    out = tmp_path / "out"
+    assert main(["measure", str(acquisition), "-o", str(out), "-q"]) == 0
+    for name in ("parameters.json", "parameters.csv", "wrinkles.json", "wrinkles.csv", "height.x3p", "summary.json", "report.html"):
+        assert (out / name).exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["source"]["height"] == "spectral correction (paper)"
+    if CHROMIUM is None:
+        pytest.skip("no chromium on this machine (Debian package 'chromium'): report not rendered")
+    screenshot = tmp_path / "shot.png"
+    run = subprocess.run(
+        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--enable-logging=stderr", "--v=0",
+         f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={screenshot}", "--window-size=1100,1900",
+         (out / "report.html").as_uri()],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert "Uncaught" not in run.stderr  # no JavaScript error in the console
+    import cv2
+
+    image = cv2.imread(str(screenshot))
+    assert image is not None
+    # The 3-D canvas sits below the two surface images: its area must not be blank.
+    band = image[int(0.42 * image.shape[0]) : int(0.62 * image.shape[0]), 40:700]
+    assert band.std() > 20 and len(np.unique(band.reshape(-1, 3), axis=0)) > 200
