@@ -306,6 +306,13 @@ INTEGRATORS = {
     "least-squares": masked_least_squares,
 }
 AUTO = "auto"
+AUTO_HOLE_FRACTION = 0.01  # auto: up to 1% of invalid pixels, in holes of at most
+AUTO_HOLE_PIXELS = 9  # 9 pixels each, are bridged and integrated by DCT
+
+
+def _largest_hole(valid):
+    labels, count = scipy.ndimage.label(~valid)
+    return int(np.bincount(labels.ravel())[1:].max()) if count else 0
 DEFAULT_INTEGRATOR = AUTO
 
 
@@ -322,8 +329,9 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
         Pixels to keep (and, for ``least-squares``, to integrate over).
     method : str
         ``auto`` (default): ``dct-poisson`` when every pixel has valid slopes (a rectangular
-        field), else ``least-squares`` over the valid pixels, since filling holes with zero
-        slope would bend the surface around them. Or ``dct-poisson``, ``frankot-chellappa``,
+        field) or at most 1% do not, in holes of at most 9 pixels (bridged with the nearest
+        valid slopes, not zero slopes, which would bend the surface around them; they stay
+        masked), else ``least-squares`` over the valid pixels (exact for any mask, slower). Or ``dct-poisson``, ``frankot-chellappa``,
         ``least-squares`` by name.
     """
     if method != AUTO and method not in INTEGRATORS:
@@ -337,7 +345,16 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
             raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {p.shape}")
         valid &= mask
     if method == AUTO:
-        method = "dct-poisson" if valid.all() else "least-squares"
+        if valid.all():
+            method = "dct-poisson"
+        elif valid.mean() >= 1 - AUTO_HOLE_FRACTION and _largest_hole(valid) <= AUTO_HOLE_PIXELS:
+            # A few tiny holes (shadowed or saturated pixels): bridge them with the nearest
+            # valid slopes and integrate by DCT; the holes stay masked in the result.
+            nearest = scipy.ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+            p, q = p[tuple(nearest)], q[tuple(nearest)]
+            method = "dct-poisson"
+        else:
+            method = "least-squares"
     if method == "least-squares":
         z = masked_least_squares(p, q, spacing, valid)
     else:
