@@ -128,30 +128,36 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
     wrinkles, ids, lines = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool)
     half_area_total = 0
     for new_id, region in enumerate(order, start=1):
-        core = segmentation.labels == region.label
+        whole_full = extent_labels == np.bincount(extent_labels[segmentation.labels == region.label]).argmax()
+        # Work in a window around the wrinkle (its extent plus the smoothing and margin reach).
+        sigma = max(1.0, region.axis_minor_length)
+        pad = int(3 * sigma + margin_px + 2)
+        rows_any, columns_any = np.nonzero(whole_full)
+        window = (slice(max(0, rows_any.min() - pad), rows_any.max() + pad + 1), slice(max(0, columns_any.min() - pad), columns_any.max() + pad + 1))
+        core = segmentation.labels[window] == region.label
+        whole = whole_full[window]
+        depth_window = filled[window]
         skeleton = skeletonize(core)
-        line_depth = filled[skeleton]
+        line_depth = depth_window[skeleton]
         if line_depth.size == 0:
             continue
         # Maximum depth: the median of the deepest part of the centre line (d >= 0.6 x its
         # 95th percentile), robust to furrows crossing the wrinkle's bottom.
         deepest = line_depth[line_depth >= 0.6 * np.percentile(line_depth, MAX_DEPTH_PERCENTILE)]
-        whole = extent_labels == np.bincount(extent_labels[core]).argmax()
         # Local centre-line depth spread across the wrinkle: a normalised Gaussian average of
         # the centre line's depths (sigma about one wrinkle width), so microrelief noise on the
         # centre line does not raise the half-depth threshold as a maximum would.
-        sigma = max(1.0, region.axis_minor_length)
         weight = scipy.ndimage.gaussian_filter(skeleton.astype(float), sigma)
         with np.errstate(invalid="ignore", divide="ignore"):
-            local = scipy.ndimage.gaussian_filter(np.where(skeleton, filled, 0.0), sigma) / weight
-        half = whole & (filled >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
+            local = scipy.ndimage.gaussian_filter(np.where(skeleton, depth_window, 0.0), sigma) / weight
+        half = whole & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
         skeleton_length = _skeleton_length(skeleton, height.spacing)
         half_area = np.count_nonzero(half) * dx * dy
         width = half_area / max(skeleton_length, dx)
         length = skeleton_length + width
         width = half_area / length
-        around = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & ~(extent_any & ~whole)
-        volume = filled[around & (filled > 0)].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
+        around = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & ~(extent_any[window] & ~whole)
+        volume = depth_window[around & (depth_window > 0)].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
         mean_depth = float(line_depth.mean())
         orientation = (np.degrees(region.orientation) + 90.0) % 180.0  # skimage: angle of the major axis from the row axis
         row, column = region.centroid
@@ -161,8 +167,8 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
             max_depth_um=float(np.median(deepest)), mean_width_mm=width / 1000,
             cross_section_mm2=volume / (length / 1000), volume_mm3=volume, severity=mean_depth * (length / 1000) / 100,
         ))
-        ids[core] = new_id
-        lines |= skeleton
+        ids[window][core] = new_id
+        lines[window] |= skeleton
         half_area_total += np.count_nonzero(half)
     return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, depth, lines)
 
