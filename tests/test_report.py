@@ -57,3 +57,19 @@ def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
     # The 3-D canvas sits below the two surface images: its area must not be blank.
     band = image[int(0.42 * image.shape[0]) : int(0.62 * image.shape[0]), 40:700]
     assert band.std() > 20 and len(np.unique(band.reshape(-1, 3), axis=0)) > 200
+
+
+def test_demo_command_runs_at_a_small_size(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "demo"), "--size", "128"]) == 0
+    printed = capsys.readouterr().out
+    assert "algorithm" in printed and "report:" in printed
+    assert (tmp_path / "demo" / "result" / "report.html").stat().st_size > 50_000
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert set(summary["evaluation"]) == {"red", "green", "blue", "white", "algorithm"}
+
+
+def test_invalid_acquisition_stops_before_any_output(tmp_path, capsys):
+    (tmp_path / "acq").mkdir()
+    (tmp_path / "acq" / "acquisition.json").write_text("{}")
+    assert main(["measure", str(tmp_path / "acq"), "-o", str(tmp_path / "out")]) == 2
+    assert "acquisition.json" in capsys.readouterr().err and not (tmp_path / "out").exists()

@@ -277,6 +277,8 @@ def cmd_demo(args):
         for band, result in results.items():
             _write_band_outputs(result_folder / band, result)
         args.region, args.level, args.p, args.q = [], 1, 10.0, 80.0
+        args.cutoff_um, args.short_cutoff_um, args.min_depth_um, args.min_length_um = (
+            DEFAULT_CUTOFF_UM, DEFAULT_SHORT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM)
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
                   "height": "spectral correction (paper)"}
         _write_measurements(result_folder, args, correction.height, results["red"].stereo.albedo, source,
@@ -343,7 +345,8 @@ def _measured_height(args):
     albedo = results[albedo_band].stereo.albedo
     source = {"input": path.name, "kind": "acquisition", "acquisition": _acquisition_summary(acquisition)}
     if all(b in results for b in REQUIRED_BANDS):
-        correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um, mask=acquisition.mask)
+        correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um,
+                                         mask=acquisition.mask, integrator=args.integrator, **_segmentation_options(args))
         return correction.height, albedo, source | {"height": "spectral correction (paper)"}
     band = "white" if "white" in results else next(iter(results))
     return results[band].height, albedo, source | {"height": f"{band} band"}
@@ -370,10 +373,10 @@ def _write_measurements(staging, args, height, albedo, source, *, title, evaluat
         for name, parameters in measured.items()
         for p in parameters
     ]
-    segmentation = segment_wrinkles(height)
+    segmentation = segment_wrinkles(height, **_segmentation_options(args))
     wrinkles = measure_wrinkles(height, segmentation)
     settings = {"source": source, "level_order": args.level, "p": args.p, "q": args.q, "segmentation": segmentation.parameters,
-                "solver": getattr(args, "solver", None), "skintopo_version": __version__}
+                "solver": args.solver, "integrator": args.integrator, "skintopo_version": __version__}
     summary = _summary("measure", args, source=source, options=settings, units="um unless stated",
                        wrinkle_totals=wrinkles.totals, evaluation=evaluations)
     write_json(staging / "parameters.json", {"summary": summary, "parameters": rows})
@@ -628,8 +631,10 @@ def build_parser():
     measure.add_argument("--region", type=_parse_region, action="append", default=[], help="extra region NAME=x0,y0,x1,y1 in um (repeatable)")
     measure.add_argument("--overwrite", action="store_true")
     measure.add_argument("-q", "--quiet", action="store_true")
-    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                         integrator=DEFAULT_INTEGRATOR, solver="least-squares")
+    measure.add_argument("--solver", choices=SOLVERS, default="least-squares", help="photometric stereo solver (acquisitions)")
+    measure.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR, help="normal integration (acquisitions)")
+    _add_segmentation_options(measure)
+    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION)
 
     wrinkles = commands.add_parser("wrinkles", help="per-wrinkle measures: length, depth, width, volume, severity")
     wrinkles.add_argument("input", type=Path, help="height map (.x3p, .npy) or an output folder holding height.x3p")
