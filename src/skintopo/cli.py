@@ -281,8 +281,11 @@ def cmd_demo(args):
             DEFAULT_CUTOFF_UM, DEFAULT_SHORT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM)
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
                   "height": "spectral correction (paper)"}
+        from skintopo.report import cross_section_pngs
+
+        figures = cross_section_pngs(heights, surface.height, surface.wrinkle_labels)
         _write_measurements(result_folder, args, correction.height, results["red"].stereo.albedo, source,
-                            title=f"skintopo demo: simulated {args.preset}, {args.skin} skin", evaluations=evaluations)
+                            title=f"skintopo demo: simulated {args.preset}, {args.skin} skin", evaluations=evaluations, cross_sections=figures)
         summary = _summary(
             "demo", args, acquisition, preset=args.preset, skin=args.skin, seed=args.seed,
             segmentation=segmentation_quality(correction.segmentation.mask, surface.wrinkle_labels > 0)
@@ -352,7 +355,7 @@ def _measured_height(args):
     return results[band].height, albedo, source | {"height": f"{band} band"}
 
 
-def _write_measurements(staging, args, height, albedo, source, *, title, evaluations=None):
+def _write_measurements(staging, args, height, albedo, source, *, title, evaluations=None, cross_sections=()):
     """Texture, fractal and wrinkle measures of ``height`` into ``staging``, with the report."""
     import csv
     from dataclasses import asdict
@@ -394,7 +397,7 @@ def _write_measurements(staging, args, height, albedo, source, *, title, evaluat
     write_label_image(staging / "wrinkles.png", wrinkles.labels)
     write_json(staging / "summary.json", summary)
     report = build_report(title=title, height=height, albedo=albedo, parameters=measured["field"], fractal_results=fractal_results,
-                          wrinkles=wrinkles, evaluations=evaluations, settings=settings)
+                          wrinkles=wrinkles, evaluations=evaluations, settings=settings, cross_sections=cross_sections)
     (staging / "report.html").write_text(report, encoding="utf-8")
     return rows, wrinkles
 

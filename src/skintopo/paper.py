@@ -8,6 +8,7 @@ feathered variant), and evaluate every height map against the ground truth.
 
 from __future__ import annotations
 
+import base64
 import csv
 import time
 from dataclasses import dataclass
@@ -15,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from skintopo.correction import spectral_correction
-from skintopo.evaluation import cross_section_line, evaluate_height
-from skintopo.filters import extract_profile
+from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
+from skintopo.report import cross_section_pngs
 from skintopo.segmentation import segmentation_quality
 from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
 
@@ -86,41 +87,10 @@ def _write_table(folder, name, title, rows, digits):
 
 
 def _figures(folder, result):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     surface = result["surface"]
-    depths = result["evaluations"]["red"]["wrinkle_max_depth_true_um"]
-    deepest = int(np.nanargmax(depths)) + 1
-    start, end = cross_section_line(surface.wrinkle_labels, deepest, surface.height.spacing)
-
-    def profile(height):
-        distance, z = extract_profile(height, start, end, width_um=100.0)
-        return distance / 1000.0, z - np.nanmedian(z)
-
-    colours = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue", "white": "0.4"}
-    distance, truth = profile(surface.height)
-    figure, axes = plt.subplots(figsize=(7, 4))
-    axes.plot(distance, truth, "k--", label="ground truth")
-    for band, colour in colours.items():
-        axes.plot(distance, profile(result["heights"][band])[1], color=colour, label=band)
-    axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"Subject {result['subject'].number}: cross-section per band")
-    axes.legend()
-    figure.tight_layout()
-    figure.savefig(folder / "figure3_cross_section_per_band.png", dpi=120)
-    plt.close(figure)
-
-    figure, axes = plt.subplots(figsize=(7, 4))
-    axes.plot(distance, truth, "k--", label="ground truth")
-    axes.plot(distance, profile(result["heights"]["red"])[1], color="tab:red", alpha=0.5, label="red")
-    axes.plot(distance, profile(result["heights"]["algorithm"])[1], color="tab:purple", label="algorithm")
-    axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"Subject {result['subject'].number}: algorithm vs ground truth")
-    axes.legend()
-    figure.tight_layout()
-    figure.savefig(folder / "figure5_algorithm_vs_truth.png", dpi=120)
-    plt.close(figure)
+    figure3, figure5 = cross_section_pngs(result["heights"], surface.height, surface.wrinkle_labels, title=f"Subject {result['subject'].number}: ")
+    (folder / "figure3_cross_section_per_band.png").write_bytes(base64.b64decode(figure3))
+    (folder / "figure5_algorithm_vs_truth.png").write_bytes(base64.b64decode(figure5))
 
 
 def paper_tables(folder, *, size_px=256, pixel_um=20.0, progress=None):

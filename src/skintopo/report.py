@@ -103,6 +103,42 @@ def scipy_dilate(mask):
     return scipy.ndimage.binary_dilation(mask, iterations=2)
 
 
+_BAND_COLOURS = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue", "white": "0.4", "algorithm": "tab:purple"}
+
+
+def cross_section_pngs(heights, truth, wrinkle_labels, *, title=""):
+    """The paper's Figures 3 and 5: a cross-section across the deepest true wrinkle, per band
+    against the ground truth, and the algorithm (with red) against it. Returns two base64 PNGs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from skintopo.evaluation import cross_section_line, wrinkle_max_depths
+    from skintopo.filters import extract_profile
+
+    deepest = int(np.nanargmax(wrinkle_max_depths(truth, wrinkle_labels))) + 1
+    start, end = cross_section_line(wrinkle_labels, deepest, truth.spacing)
+
+    def profile(height):
+        distance, z = extract_profile(height, start, end, width_um=100.0)
+        return distance / 1000.0, z - np.nanmedian(z)
+
+    distance, reference = profile(truth)
+    pictures = []
+    for chosen, caption in (([b for b in ("red", "green", "blue", "white") if b in heights], "cross-section per band"),
+                            ([b for b in ("red", "algorithm") if b in heights], "algorithm vs ground truth")):
+        figure, axes = plt.subplots(figsize=(7, 4))
+        axes.plot(distance, reference, "k--", label="ground truth")
+        for name in chosen:
+            axes.plot(distance, profile(heights[name])[1], color=_BAND_COLOURS[name], label=name, alpha=0.5 if name == "red" and len(chosen) == 2 else 1)
+        axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"{title}{caption}")
+        axes.legend()
+        figure.tight_layout()
+        pictures.append(_png(figure))
+    return pictures
+
+
 def fractal_png(results):
     import matplotlib
 
@@ -191,11 +227,13 @@ canvas { border: 1px solid #ddd; } .note { color: #555; font-size: 0.9em; }
 """
 
 
-def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(), wrinkles=None, evaluations=None, settings=None):
+def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(), wrinkles=None, evaluations=None, settings=None,
+                 cross_sections=()):
     """The report as one HTML string (see the module notes). ``parameters`` is a list of
     :class:`skintopo.texture.Parameter`; ``wrinkles`` a :class:`skintopo.wrinkles.WrinkleMeasures`;
-    ``evaluations`` {height map name: evaluation dict} when ground truth exists; ``settings``
-    a dict of inputs and options, shown as given (escaped)."""
+    ``evaluations`` {height map name: evaluation dict} when ground truth exists, with
+    ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
+    and options, shown as given (escaped)."""
     sections = [f"<h1>{html.escape(title)}</h1>"]
     field_mm = (height.shape[1] * height.spacing[1] / 1000, height.shape[0] * height.spacing[0] / 1000)
     sections.append(f"<p class=note>Field {field_mm[0]:.2f} x {field_mm[1]:.2f} mm, {height.shape[1]} x {height.shape[0]} pixels of "
@@ -249,6 +287,7 @@ def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(
             + _table(["height map", "RMS height error (um)", "in wrinkles (um)", "L2 normal error", "mean angle (deg)"],
                      [[n, evaluations[n]["rms_height_error_um"], evaluations[n].get("rms_height_error_in_wrinkles_um"),
                        evaluations[n]["l2_normal_error"], evaluations[n]["mean_angular_error_deg"]] for n in names])
+            + "".join(f"<img alt='cross-section' src='data:image/png;base64,{png}'>" for png in cross_sections)
         )
     if settings:
         sections.append("<h2>Inputs and settings</h2>" + _table(["setting", "value"], [[k, json.dumps(v, default=str)] for k, v in settings.items()]))
