@@ -549,6 +549,25 @@ def cmd_compare(args):
     return 0
 
 
+def cmd_batch(args):
+    from tqdm import tqdm
+
+    from skintopo.batch import read_study, run_study
+
+    total = len(read_study(args.study))  # validates before anything runs
+    bar = tqdm(total=total, desc="batch", unit="item", file=sys.stderr, disable=args.quiet)
+
+    def progress(item, status):
+        bar.update(1)
+        bar.set_postfix_str(f"{item.subject} {item.region} {item.visit}: {status}")
+
+    counts, tables = run_study(args.study, args.out, workers=args.workers, scheduler=args.scheduler, progress=progress)
+    bar.close()
+    _say(args, f"computed {counts['computed']}, skipped (already done) {counts['skipped']}, failed {counts['failed']}; "
+               f"tables in {Path(args.out).resolve()} (results.csv, results.parquet, changes.csv, failures.csv, summary.html)")
+    return 0
+
+
 def cmd_calibrate_lights(args):
     from skintopo.calibration import calibrate_lights
 
@@ -659,6 +678,14 @@ def build_parser():
     compare.add_argument("--overwrite", action="store_true")
     compare.add_argument("-q", "--quiet", action="store_true")
     compare.set_defaults(handler=cmd_compare)
+
+    batch = commands.add_parser("batch", help="a whole study: measure every acquisition, compare follow-ups, one table")
+    batch.add_argument("study", type=Path, help="study CSV: subject, visit, region, acquisition[, baseline]")
+    batch.add_argument("-o", "--out", type=Path, required=True, help="study output folder (reused: finished items are skipped)")
+    batch.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    batch.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:8786) to run on instead")
+    batch.add_argument("-q", "--quiet", action="store_true")
+    batch.set_defaults(handler=cmd_batch)
 
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")

@@ -1,0 +1,44 @@
+"""Benchmark: study throughput (acquisitions measured per minute) at 512 x 512 with 1 and 2
+local workers. Target (issue 9): 2 workers at least 1.6x the 1-worker figure.
+Results: bench/results/batch.json.
+"""
+
+import json
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from skintopo.batch import run_study
+from skintopo.synth import Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
+
+COUNT = 6
+
+
+def main():
+    with tempfile.TemporaryDirectory() as root:
+        root = Path(root)
+        rows = ["subject,visit,region,acquisition"]
+        for index in range(COUNT):
+            surface = make_surface(preset_spec("forehead-moderate", size_px=512), seed=index)
+            settings = default_settings(effects=Effects(interreflection=False))
+            bands, info = simulate_acquisition(surface, settings, seed=index)
+            write_synthetic_acquisition(root / f"a{index}", surface, bands, settings=settings, seed=index, info=info)
+            rows.append(f"S{index},V1,forehead,a{index}")  # baselines only: measure throughput
+        (root / "study.csv").write_text("\n".join(rows) + "\n")
+        result = {"benchmark": f"skintopo batch, {COUNT} acquisitions of 512x512 (16 images each), measure only"}
+        for workers in (1, 2):
+            start = time.perf_counter()
+            counts, _ = run_study(root / "study.csv", root / f"out{workers}", workers=workers)
+            seconds = time.perf_counter() - start
+            assert counts["computed"] == COUNT, counts
+            result[f"acquisitions_per_minute_{workers}_worker"] = round(60 * COUNT / seconds, 2)
+        result["speedup"] = round(result["acquisitions_per_minute_2_worker"] / result["acquisitions_per_minute_1_worker"], 2)
+        result["target_speedup"] = 1.6
+    result["machine"] = f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"
+    (Path(__file__).parent / "results" / "batch.json").write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
