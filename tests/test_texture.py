@@ -14,7 +14,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.texture import measure_texture, parameters_by_name
 from skintopo.texture.areal import MaterialRatio, functional_parameters, height_parameters, hybrid_parameters
-from skintopo.texture.fractal import ESTIMATORS, METHODS, fractal_dimension
+from skintopo.texture.fractal import ESTIMATORS, fractal_dimension
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
 
 A = 3.0  # amplitude, um

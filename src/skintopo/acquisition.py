@@ -58,7 +58,6 @@ DEFAULT_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0, "white": N
 CHANNEL_INDEX = {"red": 0, "green": 1, "blue": 2}
 CHANNELS = ("red", "green", "blue", "mean")
 RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".raf", ".orf", ".rw2", ".pef", ".srw")
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", *RAW_SUFFIXES)
 UNIT_TOLERANCE = 1e-3
 DEFAULT_SATURATION = 0.995
 _IMAGE_KEYS = {"file", "band", "light", "intensity", "wavelength_nm", "channel", "flat"}

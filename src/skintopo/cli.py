@@ -358,7 +358,6 @@ def _measured_height(args):
 def _write_measurements(staging, args, height, albedo, source, *, title, evaluations=None, cross_sections=()):
     """Texture, fractal and wrinkle measures of ``height`` into ``staging``, with the report."""
     import csv
-    from dataclasses import asdict
 
     from skintopo.report import build_report
     from skintopo.segmentation import segment_wrinkles
@@ -387,14 +386,8 @@ def _write_measurements(staging, args, height, albedo, source, *, title, evaluat
         writer = csv.DictWriter(stream, fieldnames=["region", "name", "value", "unit", "reference"])
         writer.writeheader()
         writer.writerows(rows)
-    write_json(staging / "wrinkles.json", wrinkles.as_dict())
-    with open(staging / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
-        fields = list(asdict(wrinkles.wrinkles[0]).keys()) if wrinkles.wrinkles else ["id"]
-        writer = csv.DictWriter(stream, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(asdict(w) for w in wrinkles.wrinkles)
+    _write_wrinkle_files(staging, wrinkles, segmentation)
     height.save(staging / "height.x3p")
-    write_label_image(staging / "wrinkles.png", wrinkles.labels)
     write_json(staging / "summary.json", summary)
     report = build_report(title=title, height=height, albedo=albedo, parameters=measured["field"], fractal_results=fractal_results,
                           wrinkles=wrinkles, evaluations=evaluations, settings=settings, cross_sections=cross_sections)
@@ -458,10 +451,23 @@ def _load_height_input(path, pixel_um):
     return HeightMap.load(path, pixel_um=pixel_um)
 
 
-def cmd_wrinkles(args):
+def _write_wrinkle_files(folder, measures, segmentation):
+    """wrinkles.json (measures, totals, segmentation settings), wrinkles.csv and the id image."""
     import csv
-    from dataclasses import asdict
+    from dataclasses import asdict, fields
 
+    from skintopo.wrinkles import Wrinkle
+
+    data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
+    write_json(folder / "wrinkles.json", data)
+    with open(folder / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
+        writer = csv.DictWriter(stream, fieldnames=[f.name for f in fields(Wrinkle)])
+        writer.writeheader()
+        writer.writerows(asdict(w) for w in measures.wrinkles)
+    write_label_image(folder / "wrinkles.png", measures.labels)
+
+
+def cmd_wrinkles(args):
     from skintopo.report import wrinkle_overlay_png
     from skintopo.segmentation import segment_wrinkles
     from skintopo.wrinkles import measure_wrinkles
@@ -471,15 +477,8 @@ def cmd_wrinkles(args):
     segmentation = segment_wrinkles(height, **_segmentation_options(args))
     measures = measure_wrinkles(height, segmentation)
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
-        write_json(staging / "wrinkles.json", data)
-        with open(staging / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
-            fields = list(asdict(measures.wrinkles[0]).keys()) if measures.wrinkles else ["id"]
-            writer = csv.DictWriter(stream, fieldnames=fields)
-            writer.writeheader()
-            writer.writerows(asdict(w) for w in measures.wrinkles)
+        _write_wrinkle_files(staging, measures, segmentation)
         (staging / "wrinkles_overlay.png").write_bytes(base64.b64decode(wrinkle_overlay_png(height, measures)))
-        write_label_image(staging / "wrinkles.png", measures.labels)
     if not args.quiet:
         if not measures.wrinkles:
             print("no wrinkles found (deeper than the minimum depth and longer than the minimum length)")

@@ -4,7 +4,6 @@ the inputs."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 from contextlib import contextmanager
