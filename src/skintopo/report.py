@@ -88,7 +88,7 @@ def wrinkle_overlay_png(height, measures):
     extent = (0, columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000, 0)
     axes.imshow(_decimate(shaded, DISPLAY_PIXELS)[0], cmap="gray", extent=extent)
     axes.imshow(np.ma.masked_equal(_decimate(measures.labels, DISPLAY_PIXELS)[0], 0), cmap="tab10", alpha=0.35, extent=extent, interpolation="nearest")
-    lines = scipy_dilate(measures.lines) if max(rows, columns) > DISPLAY_PIXELS else measures.lines
+    lines = _thicken(measures.lines) if max(rows, columns) > DISPLAY_PIXELS else measures.lines
     axes.imshow(np.ma.masked_equal(_decimate(lines.astype(int), DISPLAY_PIXELS)[0], 0), cmap="autumn", extent=extent, interpolation="nearest")
     for wrinkle in measures.wrinkles:
         axes.text(wrinkle.centroid_x_mm, wrinkle.centroid_y_mm, str(wrinkle.id), color="yellow", fontsize=14, weight="bold", ha="center", va="center")
@@ -97,7 +97,8 @@ def wrinkle_overlay_png(height, measures):
     return _png(figure)
 
 
-def scipy_dilate(mask):
+def _thicken(mask):
+    """Centre lines two pixels wider each side, so they survive downsampling for display."""
     import scipy.ndimage
 
     return scipy.ndimage.binary_dilation(mask, iterations=2)
