@@ -6,6 +6,9 @@ import ctypes
 import numpy as np
 
 LINEAR = 2  # GwyInterpolationType GWY_INTERPOLATION_LINEAR
+NO_INTERPOLATION = 0  # GWY_INTERPOLATION_NONE
+HORIZONTAL = 0  # GwyOrientation GWY_ORIENTATION_HORIZONTAL
+HANN = 1  # GwyWindowingType GWY_WINDOWING_HANN
 _NAMES = {"partitioning": "partitioning", "cube-counting": "cubecounting", "triangulation": "triangulation", "power-spectrum": "psdf"}
 
 
@@ -29,9 +32,8 @@ def version_note():
     return "Debian gwyddion (libgwyprocess2)"
 
 
-def fractal(z, method):
-    """(D, x, y) from Gwyddion for a 2-D array z (rows, columns)."""
-    lib = _LIB
+def _declare(lib):
+    """ctypes signatures of the libgwyprocess2 functions used here."""
     lib.gwy_data_field_new.restype = ctypes.c_void_p
     lib.gwy_data_field_new.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_int]
     lib.gwy_data_field_get_data.restype = ctypes.POINTER(ctypes.c_double)
@@ -42,10 +44,28 @@ def fractal(z, method):
     lib.gwy_data_line_get_res.argtypes = [ctypes.c_void_p]
     lib.gwy_data_line_get_data.restype = ctypes.POINTER(ctypes.c_double)
     lib.gwy_data_line_get_data.argtypes = [ctypes.c_void_p]
+    lib.gwy_data_field_psdf.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int]
+
+
+def _field(lib, z):
     rows, columns = z.shape
     field = lib.gwy_data_field_new(columns, rows, float(columns), float(rows), 0)
     buffer = np.ctypeslib.as_array(lib.gwy_data_field_get_data(field), shape=(rows * columns,))
     buffer[:] = np.ascontiguousarray(z, dtype=np.float64).ravel()
+    return field
+
+
+def _line(lib, line):
+    n = lib.gwy_data_line_get_res(line)
+    return np.ctypeslib.as_array(lib.gwy_data_line_get_data(line), shape=(n,)).copy()
+
+
+def fractal(z, method):
+    """(D, x, y) from Gwyddion for a 2-D array z (rows, columns); for the power spectrum this
+    is the installed version's definition (Debian 12: 2.62, which resamples the curve)."""
+    lib = _LIB
+    _declare(lib)
+    field = _field(lib, z)
     xline, yline = lib.gwy_data_line_new(1, 1.0, 0), lib.gwy_data_line_new(1, 1.0, 0)
     name = _NAMES[method]
     compute = getattr(lib, f"gwy_data_field_fractal_{name}")
@@ -56,7 +76,15 @@ def fractal(z, method):
     dimension.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_double)]
     a, b = ctypes.c_double(), ctypes.c_double()
     d = dimension(xline, yline, ctypes.byref(a), ctypes.byref(b))
-    n = lib.gwy_data_line_get_res(xline)
-    x = np.ctypeslib.as_array(lib.gwy_data_line_get_data(xline), shape=(n,)).copy()
-    y = np.ctypeslib.as_array(lib.gwy_data_line_get_data(yline), shape=(n,)).copy()
-    return float(d), x, y
+    return float(d), _line(lib, xline), _line(lib, yline)
+
+
+def row_psdf(z):
+    """Gwyddion's row PSDF as the power-spectrum estimator of 2.66 and later uses it
+    (``gwy_data_field_psdf``, horizontal, no curve resampling, Hann window), pixel units,
+    without the DC term."""
+    lib = _LIB
+    _declare(lib)
+    line = lib.gwy_data_line_new(1, 1.0, 0)
+    lib.gwy_data_field_psdf(_field(lib, z), line, HORIZONTAL, NO_INTERPOLATION, HANN, -1)
+    return _line(lib, line)

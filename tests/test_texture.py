@@ -8,13 +8,14 @@ import scipy.special
 import scipy.stats
 from gwyddion_oracle import available as gwyddion_available
 from gwyddion_oracle import fractal as gwyddion_fractal
+from gwyddion_oracle import row_psdf as gwyddion_row_psdf
 
 from skintopo.cli import main
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.texture import measure_texture, parameters_by_name
 from skintopo.texture.areal import MaterialRatio, functional_parameters, height_parameters, hybrid_parameters
-from skintopo.texture.fractal import ESTIMATORS, fractal_dimension
+from skintopo.texture.fractal import ESTIMATORS, fractal_dimension, power_spectrum
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
 
 A = 3.0  # amplitude, um
@@ -204,16 +205,36 @@ def test_fractal_bias_on_fractional_brownian_surfaces():
         estimates = {m: np.mean([ESTIMATORS[m](HeightMap(fbm(257, hurst, s), 1.0)).dimension for s in range(6)]) for m in ESTIMATORS}
         table[hurst] = estimates
         print(f"H = {hurst}: true D = {3 - hurst:.2f}; " + ", ".join(f"{m} {d:.3f} (bias {d - 3 + hurst:+.3f})" for m, d in estimates.items()))
-    # Gwyddion's behaviour on 257 x 257, H = 0.5 (field notes): 2.504, 2.353, 2.403
-    for method, quoted in (("partitioning", 2.504), ("cube-counting", 2.353), ("triangulation", 2.403)):
+    # Gwyddion's behaviour on 257 x 257, H = 0.5 (field notes): 2.504, 2.353, 2.403, 2.525
+    for method, quoted in (("partitioning", 2.504), ("cube-counting", 2.353), ("triangulation", 2.403), ("power-spectrum", 2.525)):
         assert table[0.5][method] == pytest.approx(quoted, abs=0.02), method
     # every estimator orders the surfaces correctly: rougher (lower H) means higher D
     for method in ESTIMATORS:
         assert table[0.3][method] > table[0.5][method] > table[0.7][method] > table[0.9][method]
 
 
-@pytest.mark.xfail(strict=True, reason="power spectrum on our fBm surfaces averages 2.47, not Gwyddion's quoted 2.525 (see the issue note)")
+@pytest.mark.skipif(not gwyddion_available(), reason="Debian's gwyddion (libgwyprocess2) is not installed: no oracle")
+@pytest.mark.parametrize("shape", [(257, 257), (200, 300), (130, 64), (64, 129)])
+def test_power_spectrum_matches_gwyddion_exactly(shape):
+    z = fbm(max(shape), 0.5, 2)[: shape[0], : shape[1]]
+    surface = HeightMap(z, 1.0)
+    # Gwyddion <= 2.65 (Debian 12 ships 2.62): the curve is resampled to N points first
+    d, x, y = gwyddion_fractal(z, "power-spectrum")
+    legacy = power_spectrum(surface, legacy_resampling=True)
+    np.testing.assert_allclose(legacy.x, x, atol=1e-9)
+    np.testing.assert_allclose(legacy.y, y, atol=1e-9)
+    assert legacy.dimension == pytest.approx(d, abs=1e-9)
+    # Gwyddion >= 2.66 (our default): the same PSDF, not resampled, x_i = ln i against P_{i+1}
+    curve = gwyddion_row_psdf(z)
+    ours = power_spectrum(surface)
+    np.testing.assert_allclose(ours.x, np.log(np.arange(1, curve.size)), atol=1e-12)
+    np.testing.assert_allclose(ours.y, np.log(curve[1:]), atol=1e-9)
+    slope = np.polyfit(np.log(np.arange(1, curve.size)), np.log(curve[1:]), 1)[0]
+    assert ours.dimension == pytest.approx(3.5 + slope / 2, abs=1e-9)
+
+
 def test_power_spectrum_reproduces_the_quoted_gwyddion_figure():
+    """Field notes: Gwyddion gives 2.525 on a 257 x 257 fBm surface with H = 0.5."""
     mean = np.mean([ESTIMATORS["power-spectrum"](HeightMap(fbm(257, 0.5, s), 1.0)).dimension for s in range(6)])
     assert mean == pytest.approx(2.525, abs=0.02)
 

@@ -17,11 +17,18 @@ and D comes from the slope a of the ordinary least-squares line through all of t
 * triangulation: z scaled by 2^k / h; for l = 0..k, corners every s = 2^k / 2^l pixels,
   each cell split into two triangles along the (i+1, j)-(i, j+1) diagonal, areas summed to
   S; x = (l - k) ln 2, y = ln S, D = 2 + a.
-* power spectrum (rows): each row minus its least-squares line, Hann window
-  w_i = 0.5 - 0.5 cos(2 pi (i + 0.5) / N), FFT scaled by 1/sqrt(N) and rescaled so that the
-  spectrum's RMS without DC equals the row's RMS before windowing; |F_k|^2 summed over rows
-  for 1 <= k < N/2; x = ln k, y = ln P_k, D = 3.5 + a/2. This is Gwyddion 2.66 and later
-  (2.65 and earlier linearly resampled the curve to N points first).
+* power spectrum (rows), on the field as it is (NOT resampled: Gwyddion's
+  ``gwy_data_field_fractal_psdf`` calls ``gwy_data_field_psdf`` on the original field):
+  each row minus its least-squares line, Hann window w_i = 0.5 - 0.5 cos(2 pi (i + 0.5) / N),
+  FFT scaled by 1/sqrt(N) and rescaled so that the spectrum's RMS without DC equals the RMS
+  of the ORIGINAL row about its mean (``gwy_preserve_rms_simple`` reads the input before
+  levelling); |F_k|^2 summed over rows for k < floor(N/2), times 1/(2 pi rows) (pixel units),
+  DC dropped, giving P_1 .. P_{M}, M = floor(N/2) - 1. Gwyddion 2.66 and later (our default):
+  x_i = ln i, y_i = ln P_{i+1} for i = 1 .. M - 1 -- the abscissa is the index in the
+  DC-less curve, so frequency k is plotted at ln(k - 1) and the first frequency is not
+  used. Gwyddion 2.65 and earlier (``legacy_resampling=True``) first resample P_1 .. P_M
+  linearly (pixel-centre) to N points, then the same. D = 3.5 + a/2. (Read from the
+  Gwyddion 2.62 and 2.67 sources, libprocess/fractals.c, stats-acfpsdf.c and inttrans.c.)
 
 The cube-counting and triangulation estimators are biased low on fractional Brownian
 surfaces (Gwyddion, 257 x 257, H = 0.5: 2.353 and 2.403 for a true 2.5): always report which
@@ -63,20 +70,27 @@ class FractalResult:
     intercept: float
 
 
-def resample_for_fractal(height: HeightMap):
-    """Bilinear, pixel-centre resampling of the whole field to (2^k + 1)^2, k = round(log2 xres).
-
-    Returns (z, k); pass it as ``resampled=`` to several estimators to resample only once."""
+def _complete_field(height: HeightMap):
+    """The height values as a complete array; Gwyddion works on complete fields, so missing
+    points are filled from their nearest valid neighbour."""
     z = np.asarray(height.z, dtype=float)
     if not height.mask.all():
         if not height.mask.any():
             raise SkinTopoError("the height map has no valid points")
-        # Gwyddion works on complete fields: missing points are filled from their nearest valid neighbour.
         index = scipy.ndimage.distance_transform_edt(~height.mask, return_distances=False, return_indices=True)
         z = z[tuple(index)]
     rows, columns = z.shape
     if columns < MIN_COLUMNS or rows < 2:
         raise SkinTopoError(f"fractal dimension needs a map at least {MIN_COLUMNS} columns wide, got {rows} x {columns}")
+    return z
+
+
+def resample_for_fractal(height: HeightMap):
+    """Bilinear, pixel-centre resampling of the whole field to (2^k + 1)^2, k = round(log2 xres).
+
+    Returns (z, k); pass it as ``resampled=`` to several estimators to resample only once."""
+    z = _complete_field(height)
+    rows, columns = z.shape
     k = int(round(np.log2(columns)))
     n = 2**k + 1
     row_coords = (np.arange(n) + 0.5) * rows / n - 0.5
@@ -167,27 +181,42 @@ def _heron(s, z0, z1, z2):
     return np.sqrt(np.maximum(half * (half - a) * (half - b) * (half - c), 0.0))
 
 
-def power_spectrum(height: HeightMap, resampled=None) -> FractalResult:
-    """Row-wise power spectrum method, Gwyddion (2.66+) definition: D = 3.5 + a/2."""
-    z, _ = resampled or resample_for_fractal(height)
+def row_power_spectrum(height: HeightMap) -> np.ndarray:
+    """Gwyddion's one-dimensional PSDF of the rows (``gwy_data_field_psdf``, horizontal, Hann
+    window, RMS preserved, line levelling) in pixel units, without its DC term: P_1 .. P_M,
+    M = floor(N/2) - 1 (see the module notes)."""
+    z = _complete_field(height)
     rows, n = z.shape
     index = np.arange(n)
     design = np.column_stack([np.ones(n), index])
     coefficients, *_ = np.linalg.lstsq(design, z.T, rcond=None)
     detrended = z - (design @ coefficients).T
     window = 0.5 - 0.5 * np.cos(2 * np.pi * (index + 0.5) / n)
-    spectrum = scipy.fft.fft(detrended * window, axis=1) / np.sqrt(n)
-    power = np.abs(spectrum) ** 2
-    row_rms = np.sqrt((detrended**2).mean(axis=1))
-    spectrum_rms = np.sqrt(power[:, 1:].sum(axis=1) / n)
+    power = np.abs(scipy.fft.rfft(detrended * window, axis=1)) ** 2 / n
+    # RMS of the spectrum without DC, over all N terms (the rfft's mirrored half counted twice)
+    mirrored = np.ones(power.shape[1])
+    mirrored[1 : (n + 1) // 2] = 2.0
+    spectrum_ms = (power[:, 1:] * mirrored[1:]).sum(axis=1) / n
+    original_ms = z.var(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(spectrum_rms > 0, row_rms / spectrum_rms, 0.0)
-    power *= (scale**2)[:, None]
-    half = (n + 1) // 2  # k < N/2
-    total = power[:, 1:half].sum(axis=0)
-    k_index = np.arange(1, half)
+        scale = np.where(spectrum_ms > 0, original_ms / spectrum_ms, 1.0)
+    curve = (power[:, : n // 2] * scale[:, None]).sum(axis=0) / (2 * np.pi * rows)
+    return curve[1:]
+
+
+def power_spectrum(height: HeightMap, resampled=None, legacy_resampling=False) -> FractalResult:
+    """Row-wise power spectrum method, Gwyddion's definition: D = 3.5 + a/2.
+
+    Default: Gwyddion 2.66 and later; ``legacy_resampling=True``: 2.65 and earlier. Works on
+    the field as it is (``resampled`` is accepted for a uniform signature and ignored)."""
+    curve = row_power_spectrum(height)
+    if legacy_resampling:
+        n = height.z.shape[1]
+        q = curve.size / n
+        curve = scipy.ndimage.map_coordinates(curve, [q * np.arange(n) + (q - 1) / 2], order=1, mode="nearest")
+    i = np.arange(1, curve.size)
     with np.errstate(divide="ignore"):
-        return _fit("power-spectrum", np.log(k_index), np.log(total), lambda a: 3.5 + a / 2)
+        return _fit("power-spectrum", np.log(i), np.log(curve[1:]), lambda a: 3.5 + a / 2)
 
 
 def power_spectrum_areal(height: HeightMap, resampled=None) -> FractalResult:
