@@ -66,6 +66,18 @@ def test_polynomial_form_removal():
         polynomial_form(np.full((1, 2), 1.0), 1.0, 2)
 
 
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_polynomial_form_is_the_least_squares_fit_over_the_valid_points(order):
+    rng = np.random.default_rng(order)
+    z = rng.standard_normal((30, 45)) + np.mgrid[:30, :45][0] * 0.1
+    mask = rng.random(z.shape) > 0.3
+    z[~mask] = np.nan
+    v, u = np.meshgrid(np.linspace(-1, 1, 30), np.linspace(-1, 1, 45), indexing="ij")
+    basis = np.stack([u**i * v**j for i in range(order + 1) for j in range(order + 1 - i)], axis=-1)
+    coefficients, *_ = np.linalg.lstsq(basis[mask], z[mask], rcond=None)  # independent: QR-based lstsq
+    np.testing.assert_allclose(polynomial_form(z, 1.0, order, mask), basis @ coefficients, atol=1e-10)
+
+
 def test_profile_extraction_across_a_ramp():
     rows, columns = np.mgrid[:50, :60]
     height = HeightMap(2.0 * columns * 5.0, 5.0)  # z = 2 x (um)

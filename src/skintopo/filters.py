@@ -158,13 +158,22 @@ def polynomial_form(z, spacing, order=1, mask=None):
     if order < 0 or valid.sum() < terms:
         raise SkinTopoError(f"a form of order {order} needs at least {terms} valid points, got {int(valid.sum())}")
     rows, columns = z.shape
-    v = np.linspace(-1, 1, rows)[:, None] * np.ones((1, columns))
-    u = np.ones((rows, 1)) * np.linspace(-1, 1, columns)[None, :]
-    basis = np.stack([u**i * v**j for i in range(order + 1) for j in range(order + 1 - i)], axis=-1)
-    chosen = basis[valid]
+    # The monomials u^i v^j are separable, so every sum the normal equations need is a
+    # product of small matrices: sum_valid u^a v^b z = (V^T (w z) U)[b, a], with w the 0/1
+    # validity weight, U[c, a] = u_c^a and V[r, b] = v_r^b. No (pixels x terms) basis array.
+    u_powers = np.linspace(-1, 1, columns)[:, None] ** np.arange(2 * order + 1)[None, :]
+    v_powers = np.linspace(-1, 1, rows)[:, None] ** np.arange(2 * order + 1)[None, :]
+    weight = valid.astype(np.float64)
+    moments = v_powers.T @ (weight @ u_powers)  # [b, a] = sum_valid u^a v^b
+    data = v_powers[:, : order + 1].T @ (np.where(valid, z, 0.0) @ u_powers[:, : order + 1])
+    exponents = [(i, j) for i in range(order + 1) for j in range(order + 1 - i)]
+    gram = np.array([[moments[j + jj, i + ii] for (ii, jj) in exponents] for (i, j) in exponents])
     # Normal equations: the monomials on [-1, 1] are well conditioned for the low orders used here.
-    coefficients = np.linalg.solve(chosen.T @ chosen, chosen.T @ z[valid])
-    return basis @ coefficients
+    coefficients = np.linalg.solve(gram, np.array([data[j, i] for (i, j) in exponents]))
+    table = np.zeros((order + 1, order + 1))  # [j, i]: coefficient of u^i v^j
+    for (i, j), c in zip(exponents, coefficients):
+        table[j, i] = c
+    return v_powers[:, : order + 1] @ table @ u_powers[:, : order + 1].T
 
 
 def level(height: HeightMap, order=1):

@@ -29,6 +29,8 @@ Discretisation choices, where the standard leaves one:
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.fft
 import scipy.ndimage
@@ -78,44 +80,89 @@ def hybrid_parameters(height: HeightMap):
     """
     dy, dx = height.spacing
     z = height.z
-    diff_x = np.diff(z, axis=1)
-    diff_y = np.diff(z, axis=0)
-    if not (np.isfinite(diff_x).any() and np.isfinite(diff_y).any()):
+    complete = bool(height.mask.all())
+    mean = np.mean if complete else np.nanmean
+    slope_x2 = np.square(np.diff(z, axis=1))  # squared differences; NaN next to a masked point
+    slope_y2 = np.square(np.diff(z, axis=0))
+    if not complete and not (np.isfinite(slope_x2).any() and np.isfinite(slope_y2).any()):
         raise SkinTopoError("Sdq and Sdr need at least 2 x 2 valid points")
-    sdq = float(np.sqrt(np.nanmean((diff_x / dx) ** 2) + np.nanmean((diff_y / dy) ** 2)))
-    bottom, top = (dy * diff_x[:-1, :]) ** 2, (dy * diff_x[1:, :]) ** 2
-    left, right = (dx * diff_y[:, :-1]) ** 2, (dx * diff_y[:, 1:]) ** 2
-    flat = (dx * dy) ** 2
-    corners = (
-        np.sqrt(bottom + left + flat) + np.sqrt(bottom + right + flat) + np.sqrt(top + right + flat) + np.sqrt(top + left + flat)
-    )
-    cells = np.isfinite(corners)
-    sdr = float((0.25 * corners[cells].sum() / (cells.sum() * dx * dy) - 1) * 100)
+    sdq = float(np.sqrt(mean(slope_x2) / dx**2 + mean(slope_y2) / dy**2))
+    # the four corner triangles of each cell: sqrt((dy dzx)^2 + (dx dzy)^2 + (dx dy)^2) is twice
+    # the area of the right triangle spanned by the two edge vectors at that corner
+    horizontal = (dy * dy) * slope_x2  # (rows, columns - 1): bottom [:-1], top [1:]
+    vertical = (dx * dx) * slope_y2  # (rows - 1, columns): left [:, :-1], right [:, 1:]
+    vertical += (dx * dy) ** 2
+    corners = np.zeros((z.shape[0] - 1, z.shape[1] - 1))
+    buffer = np.empty_like(corners)
+    for edge_x in (horizontal[:-1], horizontal[1:]):
+        for edge_y in (vertical[:, :-1], vertical[:, 1:]):
+            np.add(edge_x, edge_y, out=buffer)
+            corners += np.sqrt(buffer, out=buffer)
+    if complete:
+        total, cells = corners.sum(), corners.size
+    else:
+        finite = np.isfinite(corners)
+        total, cells = corners[finite].sum(), finite.sum()
+    sdr = float((0.25 * total / (cells * dx * dy) - 1) * 100)
     return {"Sdq": sdq, "Sdr": sdr}
 
 
-def autocorrelation(height: HeightMap):
-    """Unbiased linear autocorrelation of the mean-removed heights, zero lag at the centre
-    index (rows - 1, columns - 1); lags without any valid overlap are NaN."""
+def autocorrelation(height: HeightMap, max_lag=None):
+    """Unbiased linear autocorrelation of the mean-removed heights.
+
+    Lags run over |t_y| <= max_lag[0], |t_x| <= max_lag[1] pixels (default: every lag, i.e.
+    rows - 1 and columns - 1); the zero lag is at index (max_lag[0], max_lag[1]). Each lag is
+    divided by its number of overlapping valid points; lags without overlap are NaN. The
+    zero-padding is only as large as the lags asked for need (size + max lag), so a small
+    window costs a small FFT and has no wrap-around."""
+    rows, columns = height.shape
+    lag_y, lag_x = (rows - 1, columns - 1) if max_lag is None else (min(max_lag[0], rows - 1), min(max_lag[1], columns - 1))
     z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
-    weight = height.mask.astype(float)
-    shape = (2 * z.shape[0] - 1, 2 * z.shape[1] - 1)
-    fast = [scipy.fft.next_fast_len(n) for n in shape]
+    fast = [scipy.fft.next_fast_len(rows + lag_y, real=True), scipy.fft.next_fast_len(columns + lag_x, real=True)]
 
     def correlate(a):
         spectrum = scipy.fft.rfft2(a, fast, workers=-1)
-        full = scipy.fft.irfft2(spectrum * np.conj(spectrum), fast, workers=-1)
-        return np.roll(full, (z.shape[0] - 1, z.shape[1] - 1), axis=(0, 1))[: shape[0], : shape[1]]
+        circular = scipy.fft.irfft2(spectrum.real**2 + spectrum.imag**2, fast, workers=-1)
+        return _centred_lags(circular, lag_y, lag_x)
 
     raw = correlate(z)
     if height.mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|)
-        lag_rows = z.shape[0] - np.abs(np.arange(-(z.shape[0] - 1), z.shape[0]))
-        lag_columns = z.shape[1] - np.abs(np.arange(-(z.shape[1] - 1), z.shape[1]))
-        overlap = np.outer(lag_rows, lag_columns).astype(float)
+        overlap = np.outer(rows - np.abs(np.arange(-lag_y, lag_y + 1)), columns - np.abs(np.arange(-lag_x, lag_x + 1))).astype(float)
     else:
-        overlap = np.round(correlate(weight))
+        overlap = np.round(correlate(height.mask.astype(float)))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(overlap > 0, raw / overlap, np.nan)
+
+
+def _centred_lags(circular, lag_y, lag_x):
+    """Lags -lag..lag of a circular correlation (lag 0 at index 0) as one array with the zero
+    lag in the middle (slices, not fancy indexing: this is a large copy)."""
+    rows, columns = circular.shape
+    out = np.empty((2 * lag_y + 1, 2 * lag_x + 1))
+    for target_rows, source_rows in ((slice(0, lag_y), slice(rows - lag_y, rows)), (slice(lag_y, None), slice(0, lag_y + 1))):
+        out[target_rows, :lag_x] = circular[source_rows, columns - lag_x :]
+        out[target_rows, lag_x:] = circular[source_rows, : lag_x + 1]
+    return out
+
+
+def _decay_window(height: HeightMap, s):
+    """Lags (rows, columns) that the central region of the autocorrelation above s probably
+    needs: estimated from the circular (unpadded) autocorrelation of the map block-averaged
+    to about 256 pixels across, with a 50% margin (the circular estimate decays sooner than
+    the unbiased one). Only a guess: the caller checks it and falls back to every lag."""
+    factor = max(1, min(height.shape) // 256)
+    z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
+    rows, columns = z.shape[0] // factor, z.shape[1] // factor
+    z = z[: rows * factor, : columns * factor].reshape(rows, factor, columns, factor).mean(axis=(1, 3))
+    spectrum = scipy.fft.rfft2(z)
+    circular = scipy.fft.irfft2(spectrum.real**2 + spectrum.imag**2, z.shape)
+    half_y, half_x = (rows - 1) // 2, (columns - 1) // 2
+    acf = _centred_lags(circular, half_y, half_x)
+    labels, _ = scipy.ndimage.label(acf > s * acf[half_y, half_x])
+    region_rows, region_cols = np.nonzero(labels == labels[half_y, half_x])
+    extent_y = (np.abs(region_rows - half_y).max() + 1) * factor
+    extent_x = (np.abs(region_cols - half_x).max() + 1) * factor
+    return int(1.5 * extent_y) + 4, int(1.5 * extent_x) + 4
 
 
 def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
@@ -124,36 +171,101 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
 
     Sal = the shortest distance at which the autocorrelation decays to s times its zero-lag
     value; Str = shortest / longest such distance (NaN when the central region above s
-    reaches the border: the slowest decay is not inside the field).
+    reaches the border: the slowest decay is not inside the field). The autocorrelation is
+    first computed only for the lags the circular estimate says the central region needs;
+    when the region reaches that window it is computed for every lag (the values are the
+    same, only the FFT is larger).
     """
-    acf = autocorrelation(height)
     dy, dx = height.spacing
-    centre = np.array([height.shape[0] - 1, height.shape[1] - 1])
-    threshold = s * acf[centre[0], centre[1]]
-    above = np.nan_to_num(acf, nan=-np.inf) > threshold
-    labels, _ = scipy.ndimage.label(above)
-    region = labels == labels[centre[0], centre[1]]
-    touches = region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any()
-    angles = np.linspace(0, np.pi, directions, endpoint=False)  # the ACF is point-symmetric
-    step = min(dx, dy) / 4  # um along each ray
+    rows, columns = height.shape
+    for max_lag in (_decay_window(height, s), (rows - 1, columns - 1)):
+        acf = autocorrelation(height, max_lag)
+        centre = np.array([(acf.shape[0] - 1) // 2, (acf.shape[1] - 1) // 2])
+        threshold = s * acf[centre[0], centre[1]]
+        labels, _ = scipy.ndimage.label(acf > threshold)  # NaN lags compare False
+        region = labels == labels[centre[0], centre[1]]
+        touches = region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any()
+        if not touches:
+            break
     region_rows, region_cols = np.nonzero(region)
     reach = np.hypot((region_rows - centre[0]) * dy, (region_cols - centre[1]) * dx).max() + 2 * max(dx, dy)
-    radius = np.arange(int(reach / step) + 2) * step  # rays need only cross the central region
-    rows = centre[0] - np.sin(angles)[:, None] * radius[None, :] / dy  # y up: rows go the other way
-    cols = centre[1] + np.cos(angles)[:, None] * radius[None, :] / dx
-    inside = (rows >= 0) & (rows <= acf.shape[0] - 1) & (cols >= 0) & (cols <= acf.shape[1] - 1)
-    filled = np.nan_to_num(acf, nan=threshold)
-    samples = scipy.ndimage.map_coordinates(filled, [rows.clip(0, acf.shape[0] - 1), cols.clip(0, acf.shape[1] - 1)], order=1)
-    below = (samples <= threshold) & inside
-    first = below.argmax(axis=1)
-    crossed = below.any(axis=1) & (first > 0)
-    lengths = np.full(directions, np.nan)
-    i = np.flatnonzero(crossed)
-    before, after = samples[i, first[i] - 1], samples[i, first[i]]
-    lengths[i] = radius[first[i] - 1] + (before - threshold) / (before - after) * step
+    lengths = _decay_lengths(acf, centre, threshold, (dy, dx), directions, reach)
     sal = float(np.nanmin(lengths)) if np.isfinite(lengths).any() else float("nan")
     str_ = float(sal / np.nanmax(lengths)) if np.isfinite(lengths).any() and not touches else float("nan")
     return {"Sal": sal, "Str": str_, "Std": texture_direction(height)}
+
+
+def _decay_lengths(acf, centre, threshold, spacing, directions, reach):
+    """Distance (um) along each of ``directions`` rays from the centre, over [0, 180) degrees
+    (the ACF is point-symmetric), at which the ACF first falls to the threshold; NaN where a
+    ray leaves the field first. The first crossing is found on 1-pixel steps and then located
+    within that step on quarter-pixel samples, with linear interpolation between samples.
+    Rays only need to reach across the central region (``reach``, um)."""
+    dy, dx = spacing
+    filled = np.where(np.isnan(acf), threshold, acf)
+    angles = np.linspace(0, np.pi, directions, endpoint=False)
+    sin, cos = np.sin(angles)[:, None], np.cos(angles)[:, None]
+
+    def sample(radius, sin, cos):
+        rows = centre[0] - sin * radius / dy  # y up: rows go the other way
+        cols = centre[1] + cos * radius / dx
+        inside = (rows >= 0) & (rows <= acf.shape[0] - 1) & (cols >= 0) & (cols <= acf.shape[1] - 1)
+        return _bilinear(filled, rows.clip(0, acf.shape[0] - 1), cols.clip(0, acf.shape[1] - 1)), inside
+
+    step = min(dx, dy)
+    coarse = np.arange(int(reach / step) + 2) * step
+    values, inside = sample(coarse[None, :], sin, cos)
+    below = (values <= threshold) & inside
+    first = below.argmax(axis=1)
+    crossed = np.flatnonzero(below.any(axis=1) & (first > 0))
+    lengths = np.full(directions, np.nan)
+    fine = coarse[first[crossed] - 1][:, None] + np.arange(5)[None, :] * (step / 4)
+    values, _ = sample(fine, sin[crossed], cos[crossed])
+    k = (values <= threshold).argmax(axis=1)  # >= 1: the step starts above and ends below
+    ray = np.arange(crossed.size)
+    before, after = values[ray, k - 1], values[ray, k]
+    lengths[crossed] = fine[ray, k - 1] + (before - threshold) / (before - after) * (step / 4)
+    return lengths
+
+
+def _bilinear(image, rows, cols):
+    """Bilinear interpolation at (rows, cols) inside the image (the numbers of
+    ``scipy.ndimage.map_coordinates(order=1)``, several times faster for many points)."""
+    columns = image.shape[1]
+    r0 = np.minimum(rows.astype(np.intp), image.shape[0] - 2)
+    c0 = np.minimum(cols.astype(np.intp), columns - 2)
+    fr, fc = rows - r0, cols - c0
+    flat = image.ravel()
+    index = r0 * columns + c0
+    top = flat.take(index)
+    top += fc * (flat.take(index + 1) - top)
+    bottom = flat.take(index + columns)
+    bottom += fc * (flat.take(index + columns + 1) - bottom)
+    return top + fr * (bottom - top)
+
+
+@functools.lru_cache(maxsize=8)
+def _angle_bins(shape, spacing, angle_step):
+    """Angular bin (centred on multiples of ``angle_step`` degrees, counter-clockwise from
+    +x, y up, modulo 180) of every term of a ``scipy.fft.rfft2`` spectrum, and each term's
+    weight in the full spectrum: 2 for the columns whose mirror image the real FFT leaves
+    out (|F| is point-symmetric for real input, and so is the angle modulo 180), 1 for the
+    zero and Nyquist columns, 0 for the DC term."""
+    (rows, columns), (dy, dx) = shape, spacing
+    fy = scipy.fft.fftfreq(rows, dy)
+    fx = scipy.fft.rfftfreq(columns, dx)
+    if columns % 2 == 0:
+        fx[-1] = -fx[-1]  # the Nyquist column: numpy's full-spectrum convention puts it at -f
+    angle = np.degrees(np.arctan2(-fy[:, None], fx[None, :])) % 180.0  # rows run down: y up is -fy
+    count = int(round(180 / angle_step))
+    bins = np.round(angle / angle_step).astype(np.intp) % count
+    weight = np.full(fx.size, 2.0)
+    weight[0] = 1.0
+    if columns % 2 == 0:
+        weight[-1] = 1.0
+    weights = np.broadcast_to(weight, bins.shape).copy()
+    weights[0, 0] = 0.0
+    return bins.ravel(), weights.ravel(), count
 
 
 def texture_direction(height: HeightMap, *, angle_step=0.5):
@@ -162,16 +274,9 @@ def texture_direction(height: HeightMap, *, angle_step=0.5):
     A lay of parallel grooves along direction theta has its spectrum along theta + 90 degrees;
     Std reports the direction of that spectral maximum, as ISO 25178-2 §4.3.4 defines it."""
     z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
-    dy, dx = height.spacing
-    amplitude = np.abs(scipy.fft.fftshift(scipy.fft.fft2(z)))
-    fy = scipy.fft.fftshift(scipy.fft.fftfreq(z.shape[0], dy))
-    fx = scipy.fft.fftshift(scipy.fft.fftfreq(z.shape[1], dx))
-    angle = np.degrees(np.arctan2(-fy[:, None], fx[None, :])) % 180.0  # rows run down: y up is -fy
-    radius = np.hypot(fy[:, None], fx[None, :])
-    keep = radius > 0
-    count = int(round(180 / angle_step))
-    bins = np.round(angle[keep] / angle_step).astype(int) % count  # bins centred on multiples of the step
-    density = np.bincount(bins, weights=amplitude[keep], minlength=count)
+    bins, weights, count = _angle_bins(z.shape, tuple(height.spacing), angle_step)
+    amplitude = np.abs(scipy.fft.rfft2(z, workers=-1)).ravel()
+    density = np.bincount(bins, weights=amplitude * weights, minlength=count)
     return float(np.argmax(density) * angle_step)
 
 
@@ -185,53 +290,87 @@ class MaterialRatio:
 
     def __init__(self, height: HeightMap):
         z = _values(height)
-        self.heights = np.sort(z - z.mean())[::-1]  # descending: index i has material ratio i / (n - 1)
+        self._ascending = np.sort(z - z.mean())
+        self.heights = self._ascending[::-1]  # descending: index i has material ratio 100 i / (n - 1) %
         self.count = self.heights.size
-        self.ratios = np.linspace(0.0, 100.0, self.count)
-        self._cumulative = np.concatenate([[0.0], np.cumsum(self.heights)])
+        self._cumulative = np.concatenate([[0.0], np.cumsum(self.heights)])  # sums of the k highest
+
+    @property
+    def ratios(self):
+        """Material ratio (%) of each entry of ``heights``: 100 i / (n - 1)."""
+        return np.linspace(0.0, 100.0, self.count)
+
+    def _at_or_above(self, c):
+        return self.count - int(np.searchsorted(self._ascending, c, side="left"))
+
+    def _above(self, c):
+        return self.count - int(np.searchsorted(self._ascending, c, side="right"))
 
     def smr(self, c):
         """Areal material ratio Smr(c) in %: share of the points at or above height c (um)."""
-        return 100.0 * float(np.count_nonzero(self.heights >= c)) / self.count
+        return 100.0 * self._at_or_above(c) / self.count
 
     def smc(self, mr):
         """Inverse areal material ratio Smc(mr) in um: the height where the ratio is mr %."""
         if not 0 <= mr <= 100:
             raise SkinTopoError(f"material ratio must be within 0-100 %, got {mr}")
-        return float(np.interp(mr, self.ratios, self.heights))
+        position = mr / 100.0 * (self.count - 1)
+        i = min(int(position), self.count - 2) if self.count > 1 else 0
+        if self.count == 1:
+            return float(self.heights[0])
+        fraction = position - i
+        return float(self.heights[i] + fraction * (self.heights[i + 1] - self.heights[i]))
 
     def material_volume(self, mr):
         """Vm(mr) in um^3/um^2 (= ml/m^2): volume of material above the height Smc(mr), per
         unit area, Vm = (1/N) sum over z > c of (z - c)."""
         c = self.smc(mr)
-        above = int(np.count_nonzero(self.heights > c))
+        above = self._above(c)
         return float((self._cumulative[above] - above * c) / self.count)
 
     def void_volume(self, mr):
         """Vv(mr) in um^3/um^2: void volume below Smc(mr) per unit area, (1/N) sum over z < c of (c - z)."""
         c = self.smc(mr)
-        above = int(np.count_nonzero(self.heights >= c))
+        above = self._at_or_above(c)
         below = self.count - above
         return float((below * c - (self._cumulative[-1] - self._cumulative[above])) / self.count)
 
     def core(self):
-        """Sk, Spk, Svk, Smr1, Smr2 (ISO 25178-2:2021 Annex B.1, after ISO 13565-2)."""
-        ratios, heights = self.ratios, self.heights
+        """Sk, Spk, Svk, Smr1, Smr2 (ISO 25178-2:2021 Annex B.1, after ISO 13565-2).
+
+        Point i of the curve has material ratio 100 i / (n - 1) %, so the 40% window spans
+        w = 0.4 (n - 1) index steps (an integer part and a fraction; integer arithmetic keeps
+        the window's ends exact)."""
+        heights, n = self.heights, self.count
+        if n < 3:
+            raise SkinTopoError("Sk and its companions need at least 3 valid points")
+        steps, remainder = divmod(2 * (n - 1), 5)  # 40% of the n - 1 steps
+        fraction = remainder / 5
+        starts = 3 * (n - 1) // 5 + 1  # points with ratio <= 60 %
         # Least steep 40% secant: heights at mr and mr + 40 (interpolated), over all start points.
-        starts = ratios[ratios <= 100 - EQUIVALENT_LINE_WIDTH]
-        ends = np.interp(starts + EQUIVALENT_LINE_WIDTH, ratios, heights)
-        drops = heights[: starts.size] - ends
+        ends = heights[steps : steps + starts]
+        if fraction:
+            ends = ends + fraction * (heights[steps + 1 : steps + 1 + starts] - ends)
+        drops = heights[:starts] - ends
         first = int(np.argmin(drops))  # smallest drop = least steep; first occurrence
-        window = (ratios >= starts[first]) & (ratios <= starts[first] + EQUIVALENT_LINE_WIDTH)
-        slope, intercept = np.polyfit(ratios[window], heights[window], 1)
+        # Equivalent straight line: least squares over the points of the window, in closed form
+        # (u = index - first, uniform steps): slope per index step, then per % of material ratio.
+        window = heights[first : first + steps + 1]
+        u = np.arange(window.size, dtype=float)
+        u_mean, y_mean = u.mean(), window.mean()
+        slope_per_step = float(np.dot(u - u_mean, window - y_mean) / np.dot(u - u_mean, u - u_mean))
+        per_percent = (n - 1) / 100.0
+        slope = slope_per_step * per_percent
+        intercept = y_mean - slope_per_step * (first + u_mean)
         upper, lower = intercept, slope * 100 + intercept
         smr1, smr2 = self.smr(upper), self.smr(lower)
-        # Peak area A1 = integral over 0..Smr1 of (curve - upper); valley area A2 likewise.
-        peak = heights > upper
-        valley = heights < lower
-        step = 100.0 / (self.count - 1)
-        a1 = float(np.sum(heights[peak] - upper) * step)
-        a2 = float(np.sum(lower - heights[valley]) * step)
+        # Peak area A1 = integral over 0..Smr1 of (curve - upper); valley area A2 likewise,
+        # each point standing for one step of 100 / (n - 1) %.
+        step = 100.0 / (n - 1)
+        peaks = self._above(upper)
+        valleys = n - self._at_or_above(lower)
+        a1 = float((self._cumulative[peaks] - peaks * upper) * step)
+        a2 = float((valleys * lower - (self._cumulative[-1] - self._cumulative[n - valleys])) * step)
         return {
             "Sk": float(upper - lower),
             "Spk": 2 * a1 / smr1 if a1 > 0 and smr1 > 0 else 0.0,

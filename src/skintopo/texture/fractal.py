@@ -93,10 +93,23 @@ def resample_for_fractal(height: HeightMap):
     rows, columns = z.shape
     k = int(round(np.log2(columns)))
     n = 2**k + 1
-    row_coords = (np.arange(n) + 0.5) * rows / n - 0.5
-    col_coords = (np.arange(n) + 0.5) * columns / n - 0.5
-    grid_r, grid_c = np.meshgrid(row_coords, col_coords, indexing="ij")
-    return scipy.ndimage.map_coordinates(z, [grid_r, grid_c], order=1, mode="nearest"), k
+    return _linear_resample(_linear_resample(z, n, axis=1), n, axis=0), k
+
+
+def _linear_resample(z, n, axis):
+    """Linear interpolation of z to n samples along ``axis`` with pixel-centre mapping,
+    x_i = (i + 0.5) size / n - 0.5, clamped to the ends (Gwyddion's bilinear resampling is the
+    product of two of these, so doing one axis at a time gives the same numbers faster)."""
+    size = z.shape[axis]
+    coords = ((np.arange(n) + 0.5) * size / n - 0.5).clip(0, size - 1)
+    lower = np.minimum(coords.astype(np.intp), max(size - 2, 0))
+    shape = [1, 1]
+    shape[axis] = n
+    fraction = (coords - lower).reshape(shape)
+    start = z.take(lower, axis=axis)
+    if size == 1:
+        return start
+    return start + fraction * (z.take(lower + 1, axis=axis) - start)
 
 
 def _fit(method, x, y, dimension_of_slope):
@@ -111,14 +124,29 @@ def _fit(method, x, y, dimension_of_slope):
 def partitioning(height: HeightMap, resampled=None) -> FractalResult:
     """Variance (partitioning) method, Gwyddion's definition: D = 3 - a/2."""
     z, k = resampled or resample_for_fractal(height)
+    # Tile statistics level by level: the 2 x 2 tiles directly, then each level's tiles from
+    # their four children (count, mean and sum of squared deviations combined exactly, Chan,
+    # Golub & LeVeque 1983), so the whole pyramid costs about one pass over the map.
+    size = 2**k
+    quads = (z[:size:2, :size:2], z[1:size:2, :size:2], z[:size:2, 1:size:2], z[1:size:2, 1:size:2])
+    mean = sum(quads) / 4
+    squares = sum((q - mean) ** 2 for q in quads)  # sum of squared deviations per tile
+    points = 4
     xs, ys = [], []
     for level in range(1, k):
         r = 2**level
-        c = 2**k // r - 1
-        tiles = z[: c * r, : c * r].reshape(c, r, c, r)
-        variance = tiles.var(axis=(1, 3))
+        c = size // r - 1  # the last row and column of tiles are skipped
+        variance = squares[:c, :c].mean() / points
         xs.append(np.log(r))
-        ys.append(np.log(variance.mean()) if variance.mean() > 0 else np.nan)
+        ys.append(np.log(variance) if variance > 0 else np.nan)
+        if level + 1 < k:
+            children = (mean[::2, ::2], mean[1::2, ::2], mean[::2, 1::2], mean[1::2, 1::2])
+            parent = sum(children) / 4
+            squares = (
+                squares[::2, ::2] + squares[1::2, ::2] + squares[::2, 1::2] + squares[1::2, 1::2]
+                + points * sum((child - parent) ** 2 for child in children)
+            )
+            mean, points = parent, 4 * points
     return _fit("partitioning", xs, ys, lambda a: 3 - a / 2)
 
 
@@ -129,28 +157,21 @@ def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
     h = z.max()
     if h <= 0:
         raise SkinTopoError("cube counting: the map is flat")
-    xs, ys = [], []
-    n = 2**k
-    for level in range(k):
-        m = 2 ** (level + 1)
-        s = n // m
-        # column (i, j) spans samples i*s .. i*s + s inclusive: (s + 1)^2 samples
-        cmin = _block_extreme(z, s, m, np.minimum)
-        cmax = _block_extreme(z, s, m, np.maximum)
+    # Column extremes level by level: the finest columns (2 x 2 samples) from four shifted
+    # views, each coarser column (sharing its edges) as the extreme of its four children.
+    low = np.minimum(np.minimum(z[:-1, :-1], z[1:, :-1]), np.minimum(z[:-1, 1:], z[1:, 1:]))
+    high = np.maximum(np.maximum(z[:-1, :-1], z[1:, :-1]), np.maximum(z[:-1, 1:], z[1:, 1:]))
+    counts = {}
+    for level in range(k - 1, -1, -1):
+        m = 2 ** (level + 1)  # columns per side, each 2^k / m pixels wide
         eps = h / m
-        count = m - np.floor(cmin / eps) - np.floor((h - cmax) / eps)
-        xs.append((level + 1 - k) * np.log(2))
-        ys.append(np.log(count.sum()))
+        counts[level] = (m - np.floor(low / eps) - np.floor((h - high) / eps)).sum()
+        if level:
+            low = np.minimum(np.minimum(low[::2, ::2], low[1::2, ::2]), np.minimum(low[::2, 1::2], low[1::2, 1::2]))
+            high = np.maximum(np.maximum(high[::2, ::2], high[1::2, ::2]), np.maximum(high[::2, 1::2], high[1::2, 1::2]))
+    xs = [(level + 1 - k) * np.log(2) for level in range(k)]
+    ys = [np.log(counts[level]) for level in range(k)]
     return _fit("cube-counting", xs, ys, lambda a: a)
-
-
-def _block_extreme(z, s, m, pick):
-    """Min or max (``pick`` = np.minimum / np.maximum) over the m x m blocks of (s + 1)^2
-    samples that start every s samples and share their edges."""
-    along_rows = pick.reduce(z[: m * s].reshape(m, s, -1), axis=1)
-    along_rows = pick(along_rows, z[s : m * s + 1 : s])
-    blocks = pick.reduce(along_rows[:, : m * s].reshape(m, m, s), axis=2)
-    return pick(blocks, along_rows[:, s : m * s + 1 : s])
 
 
 def triangulation(height: HeightMap, resampled=None) -> FractalResult:
@@ -165,20 +186,17 @@ def triangulation(height: HeightMap, resampled=None) -> FractalResult:
         s = 2**k // 2**level
         corners = z[::s, ::s]
         a, b, c, d = corners[:-1, :-1], corners[1:, :-1], corners[:-1, 1:], corners[1:, 1:]  # (i,j), (i+1,j), (i,j+1), (i+1,j+1)
-        area = _heron(s, a, b, c) + _heron(s, d, b, c)
+        area = _right_triangle_area(s, a, b, c) + _right_triangle_area(s, d, b, c)
         xs.append((level - k) * np.log(2))
         ys.append(np.log(area.sum()))
     return _fit("triangulation", xs, ys, lambda a: 2 + a)
 
 
-def _heron(s, z0, z1, z2):
-    """Area of triangles with vertices (0,0,z0), (s,0,z1), (0,s,z2) (right-angled in plan),
-    by Heron's formula as Gwyddion computes it."""
-    a = np.sqrt(s * s + (z1 - z0) ** 2)
-    b = np.sqrt(s * s + (z2 - z0) ** 2)
-    c = np.sqrt(2 * s * s + (z2 - z1) ** 2)
-    half = (a + b + c) / 2
-    return np.sqrt(np.maximum(half * (half - a) * (half - b) * (half - c), 0.0))
+def _right_triangle_area(s, z0, z1, z2):
+    """Area of triangles with vertices (0,0,z0), (s,0,z1), (0,s,z2) (right-angled in plan):
+    half the cross product of the two legs, s/2 sqrt(s^2 + (z1-z0)^2 + (z2-z0)^2). Gwyddion
+    evaluates the same area by Heron's formula; one square root instead of four."""
+    return 0.5 * s * np.sqrt(s * s + (z1 - z0) ** 2 + (z2 - z0) ** 2)
 
 
 def row_power_spectrum(height: HeightMap) -> np.ndarray:
@@ -188,11 +206,12 @@ def row_power_spectrum(height: HeightMap) -> np.ndarray:
     z = _complete_field(height)
     rows, n = z.shape
     index = np.arange(n)
-    design = np.column_stack([np.ones(n), index])
-    coefficients, *_ = np.linalg.lstsq(design, z.T, rcond=None)
-    detrended = z - (design @ coefficients).T
+    centred = index - (n - 1) / 2
+    row_slope = (z @ centred)[:, None] / np.dot(centred, centred)  # least-squares line of each row
+    detrended = z - z.mean(axis=1, keepdims=True) - row_slope * centred[None, :]
     window = 0.5 - 0.5 * np.cos(2 * np.pi * (index + 0.5) / n)
-    power = np.abs(scipy.fft.rfft(detrended * window, axis=1)) ** 2 / n
+    spectrum = scipy.fft.rfft(detrended * window, axis=1, workers=-1)
+    power = (spectrum.real**2 + spectrum.imag**2) / n
     # RMS of the spectrum without DC, over all N terms (the rfft's mirrored half counted twice)
     mirrored = np.ones(power.shape[1])
     mirrored[1 : (n + 1) // 2] = 2.0
