@@ -8,6 +8,7 @@ dimension by four classic estimators (Gwyddion's definitions) plus a physically 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,22 +74,32 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     if not height.mask.any():
         raise SkinTopoError("the height map has no valid points")
     surface = level(height, level_order) if level_order is not None else height
-    values = {}
-    values.update(height_parameters(surface))
-    values.update(hybrid_parameters(surface))
-    values.update(spatial_parameters(surface))
-    values.update(functional_parameters(surface, p=p, q=q))
+    # The autocorrelation (spatial) and the fractal pyramids are independent of the rest and
+    # spend their time inside NumPy/SciPy loops that release the GIL: run them beside it.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        spatial = pool.submit(spatial_parameters, surface)
+        fractal = pool.submit(_fractal_estimates, surface, tuple(fractal_methods))
+        values = {}
+        values.update(height_parameters(surface))
+        values.update(hybrid_parameters(surface))
+        values.update(spatial.result())
+        values.update(functional_parameters(surface, p=p, q=q))
+        estimates = fractal.result()
     references = dict(_REFERENCES)
     for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
         references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
     parameters = [Parameter(name, float(value), _UNITS[name], references[name]) for name, value in values.items()]
-    resampled = resample_for_fractal(surface) if fractal_methods else None
-    for method in fractal_methods:
-        result = fractal_dimension(surface, method, resampled)
+    for result in estimates:
         if fractal_results is not None:
             fractal_results.append(result)
-        parameters.append(Parameter(f"D_{method}", result.dimension, "", f"fractal dimension, {method} (Gwyddion definition)" if method in FRACTAL_METHODS else f"fractal dimension, {method}"))
+        reference = f"fractal dimension, {result.method} (Gwyddion definition)" if result.method in FRACTAL_METHODS else f"fractal dimension, {result.method}"
+        parameters.append(Parameter(f"D_{result.method}", result.dimension, "", reference))
     return parameters
+
+
+def _fractal_estimates(surface, methods):
+    resampled = resample_for_fractal(surface) if methods else None
+    return [fractal_dimension(surface, method, resampled) for method in methods]
 
 
 def parameters_by_name(parameters):
