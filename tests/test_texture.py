@@ -252,6 +252,12 @@ def test_bad_inputs():
         profile_parameters(np.zeros(100), 1.0, lambda_c=800.0)
     with pytest.raises(SkinTopoError, match="unknown fractal method"):
         fractal_dimension(HeightMap(np.zeros((32, 32)), 1.0), "box")
+    with pytest.raises(SkinTopoError, match="cannot be fitted.*1 x 50"):
+        measure_texture(HeightMap(np.arange(50.0)[None, :], 1.0))
+    # a constant map: Sq = 0, so Ssk and Sku (0/0) and the fractal dimensions are NaN, the rest is defined
+    flat = parameters_by_name(measure_texture(HeightMap(np.full((32, 32), 7.0), 1.0)))
+    assert flat["Sq"] < 1e-12 and flat["Sz"] < 1e-12 and abs(flat["Sdr"]) < 1e-12  # levelling round-off only
+    assert np.isnan(flat["Ssk"]) and np.isnan(flat["Sku"]) and np.isnan(flat["D_cube-counting"])
 
 
 def test_masked_points_are_left_out():

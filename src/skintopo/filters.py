@@ -168,7 +168,13 @@ def polynomial_form(z, spacing, order=1, mask=None):
     data = v_powers[:, : order + 1].T @ (np.where(valid, z, 0.0) @ u_powers[:, : order + 1])
     exponents = [(i, j) for i in range(order + 1) for j in range(order + 1 - i)]
     gram = np.array([[moments[j + jj, i + ii] for (ii, jj) in exponents] for (i, j) in exponents])
-    # Normal equations: the monomials on [-1, 1] are well conditioned for the low orders used here.
+    # Normal equations: the monomials on [-1, 1] are well conditioned for the low orders used
+    # here, so a singular system means the valid points cannot pin the form down.
+    if np.linalg.cond(gram) > 1e12:
+        raise SkinTopoError(
+            f"a form of order {order} cannot be fitted: the {int(valid.sum())} valid points of the {rows} x {columns} map"
+            " lie on too few rows or columns"
+        )
     coefficients = np.linalg.solve(gram, np.array([data[j, i] for (i, j) in exponents]))
     table = np.zeros((order + 1, order + 1))  # [j, i]: coefficient of u^i v^j
     for (i, j), c in zip(exponents, coefficients):

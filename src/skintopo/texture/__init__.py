@@ -16,9 +16,9 @@ import numpy as np
 from skintopo.errors import SkinTopoError
 from skintopo.filters import level
 from skintopo.heightmap import HeightMap
-from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
+from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, FLAT_SQ_UM, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
 from skintopo.texture.fractal import METHODS as FRACTAL_METHODS
-from skintopo.texture.fractal import fractal_dimension, resample_for_fractal
+from skintopo.texture.fractal import FractalResult, fractal_dimension, resample_for_fractal
 from skintopo.texture.profile import PROFILE_UNITS, line_profile_parameters, profile_parameters
 
 __all__ = ["Parameter", "measure_texture", "profile_parameters", "line_profile_parameters", "fractal_dimension", "PROFILE_UNITS"]
@@ -98,7 +98,14 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
 
 
 def _fractal_estimates(surface, methods):
-    resampled = resample_for_fractal(surface) if methods else None
+    """Every estimator's result; on a flat map (height range below 1e-9 um, levelling
+    round-off) D is undefined: NaN, with no log-log points, instead of an error that would
+    hide the other parameters."""
+    if not methods:
+        return []
+    resampled = resample_for_fractal(surface)
+    if np.ptp(resampled[0]) < FLAT_SQ_UM:
+        return [FractalResult(method, float("nan"), np.array([]), np.array([]), float("nan"), float("nan")) for method in methods]
     return [fractal_dimension(surface, method, resampled) for method in methods]
 
 
