@@ -89,21 +89,24 @@ def test_profile_extraction_across_a_ramp():
 
 @pytest.mark.slow
 def test_segmentation_defaults_work_on_the_presets():
-    """Six seeds of each preset. Known failure, reported in the note: on the high state a
-    corner of the field can produce one extra short 'wrinkle' (2 of 6 seeds)."""
-    failures, ious = [], []
-    for seed in range(1, 7):
+    """Seeds 1-6 of each preset chose the defaults (all counts exact); seeds 7-14 are held
+    out (one miss allowed: a 50 um wrinkle of the low state whose band-passed floor stays
+    under the 25 um seed depth, seed 10)."""
+    failures, held_out_failures, ious = [], [], []
+    for seed in range(1, 15):
         for preset, expected in (("forehead-low", 2), ("forehead-moderate", 3), ("forehead-high", 4), ("flat-microrelief", 0)):
             surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
             segmentation = segment_wrinkles(surface.height)
             quality = segmentation_quality(segmentation.mask, surface.wrinkle_labels > 0)
             if segmentation.count != expected:
-                failures.append((preset, seed, segmentation.count))
+                (failures if seed <= 6 else held_out_failures).append((preset, seed, segmentation.count))
             if expected:
-                ious.append(quality["iou"])
+                if segmentation.count == expected:  # the missed wrinkle's field has a low IoU by construction
+                    ious.append(quality["iou"])
                 assert segmentation.extent[segmentation.mask].all() and segmentation.extent.sum() > segmentation.mask.sum()
-    print(f"segmentation: {24 - len(failures)} of 24 counts exact, failures {failures}; IoU min {min(ious):.2f}, mean {np.mean(ious):.2f}")
-    assert len(failures) <= 2 and all(preset == "forehead-high" for preset, _, _ in failures)
+    print(f"segmentation: failures {failures} (seeds 1-6), {held_out_failures} (held-out seeds 7-14); IoU min {min(ious):.2f}, mean {np.mean(ious):.2f}")
+    assert not failures
+    assert len(held_out_failures) <= 1
     assert np.mean(ious) > 0.7 and min(ious) > 0.55
 
 

@@ -53,8 +53,7 @@ def test_measures_of_known_wrinkles_on_smooth_skin(preset):
     measures, errors = relative_errors(surface)
     for e in errors:
         print(preset, {k: f"{100 * v:+.1f}%" for k, v in e.items()})
-    if preset != "forehead-high":  # see the note: one edge artefact on smooth high-state skin
-        assert len(measures.wrinkles) == len(spec.wrinkles)
+    assert len(measures.wrinkles) == len(spec.wrinkles)
     for e in errors:
         assert abs(e["length_mm"]) < 0.10 and abs(e["max_depth_um"]) < 0.10
         assert abs(e["mean_width_mm"]) < 0.15 and abs(e["volume_mm3"]) < 0.15
@@ -62,6 +61,10 @@ def test_measures_of_known_wrinkles_on_smooth_skin(preset):
 
 @pytest.mark.slow
 def test_measures_with_microrelief_count_exact_errors_reported():
+    """With the microrelief on, counts are exact and errors small on average; single wrinkles
+    of the low state (50-60 um deep, S-filtered microrelief 9 um RMS) can miss the per-wrinkle
+    tolerances: that is reported (printed, and in the issue note), not asserted away. The
+    moderate and high states (>= 80 um) are held to the issue's tolerances."""
     table, miscounts = [], []
     for seed in (1, 2, 3):
         for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
@@ -69,13 +72,15 @@ def test_measures_with_microrelief_count_exact_errors_reported():
             measures, errors = relative_errors(surface)
             if len(measures.wrinkles) != len(surface.spec.wrinkles):
                 miscounts.append((preset, seed, len(measures.wrinkles)))
-            table += errors
-    print("miscounts (extra corner artefact, see the note):", miscounts)
-    assert len(miscounts) <= 1
-    for name in ("length_mm", "max_depth_um", "mean_width_mm", "volume_mm3"):
-        values = np.array([e[name] for e in table])
-        print(f"{name:>14}: mean error {100 * values.mean():+.1f}%, mean |error| {100 * np.abs(values).mean():.1f}%, worst {100 * np.abs(values).max():.1f}%")
+            table += [(preset, e) for e in errors]
+    assert not miscounts
+    for name, tolerance in (("length_mm", 0.10), ("max_depth_um", 0.10), ("mean_width_mm", 0.15), ("volume_mm3", 0.15)):
+        values = np.array([e[name] for _, e in table])
+        deep = np.array([e[name] for preset, e in table if preset != "forehead-low"])
+        print(f"{name:>14}: mean error {100 * values.mean():+.1f}%, mean |error| {100 * np.abs(values).mean():.1f}%, "
+              f"worst {100 * np.abs(values).max():.1f}% (moderate/high: worst {100 * np.abs(deep).max():.1f}%)")
         assert np.abs(values).mean() < 0.10
+        assert np.abs(deep).max() < tolerance, name
 
 
 def test_wrinkles_command(tmp_path, capsys):

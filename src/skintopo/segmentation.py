@@ -14,7 +14,12 @@ because the height map does not over-segment. Steps:
    until it meets the background.
 4. Each valley is kept down to half of its local maximum depth (the maximum of d within
    about one wrinkle width): the half-depth region, where width is measured. Touching
-   regions merge, and regions shorter than ``min_length_um`` (major axis) are dropped.
+   regions merge, and regions shorter than ``min_length_um`` (major axis) are dropped; a
+   kept wrinkle keeps every half-depth piece of its basin group.
+5. Confirmation: a candidate is kept only if its core lies at least ``min_depth_um``
+   (median) below the skin around it, judged on the surface S-filtered at 0.25 mm against a
+   Gaussian regression (2.5 mm) over the skin outside all candidates. This removes valleys
+   that the long-wave mean line invents at the field's edges next to deep wrinkles.
 
 Returns wrinkle labels (0 = none, half-depth regions), the centre lines (skeleton), and the
 full extent of the kept wrinkles (their watershed basins, walls included).
@@ -31,7 +36,7 @@ from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import gaussian_bandpass, level
+from skintopo.filters import areal_gaussian_filter, gaussian_bandpass, level
 from skintopo.heightmap import HeightMap
 
 DEFAULT_CUTOFF_UM = 8000.0
@@ -39,6 +44,9 @@ DEFAULT_SHORT_CUTOFF_UM = 600.0
 DEFAULT_MIN_DEPTH_UM = 25.0
 DEFAULT_MIN_LENGTH_UM = 1500.0
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
+REFERENCE_CUTOFF_UM = 2500.0  # local skin level for confirming candidates
+REFERENCE_MARGIN_UM = 150.0
+REFERENCE_SHORT_CUTOFF_UM = 250.0  # ISO lambda_s series value; keeps most of a 0.4 mm wrinkle's depth
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,8 +121,12 @@ def segment_wrinkles(
     # group of basins holding a kept core is one wrinkle, and its cores share its id.
     basins = label((flooded >= 1) & (flooded <= n_seeds))
     kept_basins = np.unique(basins[kept])
-    extent = np.isin(basins, kept_basins[kept_basins > 0])
-    labels = np.where(kept, basins, 0)
+    kept_basins = _confirmed_against_surrounding_skin(height, valid, basins, kept, kept_basins[kept_basins > 0], short_cutoff_um, min_depth_um)
+    extent = np.isin(basins, kept_basins)
+    # A kept wrinkle's half-depth region is all of its basin group's half-depth points, also
+    # the pieces that a shallower stretch of the floor cut off from the core that passed the
+    # length test (each piece alone may be short).
+    labels = np.where(regions & extent, basins, 0)
     lines = skeletonize(labels > 0)
     parameters = {
         "cutoff_um": cutoff_um,
@@ -125,6 +137,24 @@ def segment_wrinkles(
     }
     labels = _relabel(labels)
     return WrinkleSegmentation(labels, lines, extent, np.where(valid, depth, np.nan), parameters)
+
+
+def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates, short_cutoff_um, min_depth_um):
+    """The candidate basins whose core lies at least ``min_depth_um`` (median) below the skin
+    around them. The band-pass's long-wave mean line is pulled down by deep wrinkles and
+    cannot follow the field's edges, so a smooth corner can look like a valley; the local
+    skin level here is the Gaussian regression (``REFERENCE_CUTOFF_UM``) of the short-pass
+    surface over the skin outside every candidate (widened by ``REFERENCE_MARGIN_UM``), which
+    a real valley is below and an edge artefact is not."""
+    if candidates.size == 0:
+        return candidates
+    fine = areal_gaussian_filter(level(height, order=2).z, height.spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), valid)
+    margin_px = max(1, int(round(REFERENCE_MARGIN_UM / min(height.spacing))))
+    skin = valid & ~scipy.ndimage.binary_dilation(np.isin(basins, candidates), iterations=margin_px)
+    if skin.sum() < 0.05 * valid.sum():
+        return candidates  # too little skin to judge: keep them all
+    below = areal_gaussian_filter(fine, height.spacing, REFERENCE_CUTOFF_UM, skin) - fine
+    return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
 
 
 def _relabel(labels):

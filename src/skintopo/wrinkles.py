@@ -21,8 +21,11 @@ same map always gives the same ids):
   least 0.6 x its 95th percentile): the depth of the wrinkle's floor, robust to furrows
   crossing it; ``mean_depth_um``: mean of d along the centre line;
 * ``mean_width_mm`` at half depth: area where d >= 0.5 x the local centre-line depth (a
-  Gaussian average of the centre line's depths, about one width wide), divided by the length;
-* ``volume_mm3``: integral of d > 0 over the wrinkle's full extent widened by ``margin_um``;
+  Gaussian average of the centre line's depths, about one width wide), within one core width
+  of the centre line (a furrow branching off is not width), divided by the length;
+* ``volume_mm3``: integral of the signed d over the half-depth region widened by one width
+  plus ``margin_um`` (other wrinkles left out); signed because the microrelief has zero mean
+  about the reference level, so clipping d at zero would add the surrounding furrows' volume;
   ``cross_section_mm2`` = volume / length;
 * ``severity`` = mean depth (um) x length (mm) / 100: a depth-length index that grows with
   either; a ranking aid within a study, not a clinical grading scale.
@@ -150,14 +153,24 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         weight = scipy.ndimage.gaussian_filter(skeleton.astype(float), sigma)
         with np.errstate(invalid="ignore", divide="ignore"):
             local = scipy.ndimage.gaussian_filter(np.where(skeleton, depth_window, 0.0), sigma) / weight
-        half = whole & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
+        # The half-depth region stays within one core width of the centre line, so a furrow
+        # branching off the wrinkle (as deep as half the wrinkle) is not counted as its width.
         skeleton_length = _skeleton_length(skeleton, height.spacing)
+        distance = scipy.ndimage.distance_transform_edt(~skeleton, sampling=(dy, dx))
+        core_width = np.count_nonzero(core) * dx * dy / max(skeleton_length, dx)
+        near = distance <= max(core_width, 2 * max(dx, dy))
+        half = whole & near & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
         half_area = np.count_nonzero(half) * dx * dy
         width = half_area / max(skeleton_length, dx)
         length = skeleton_length + width
         width = half_area / length
-        around = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & ~(extent_any[window] & ~whole)
-        volume = depth_window[around & (depth_window > 0)].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
+        # Volume: the signed depth integrated over the wrinkle and its walls (within one width
+        # plus the margin of the half-depth region), other wrinkles left out. Signed, because the
+        # skin's microrelief has zero mean about the reference level: clipping d at zero
+        # would add the furrows' volume around the wrinkle.
+        reach = width + margin_um
+        walls = (scipy.ndimage.distance_transform_edt(~half, sampling=(dy, dx)) <= reach) & ~(extent_any[window] & ~whole)
+        volume = depth_window[walls].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
         mean_depth = float(line_depth.mean())
         orientation = (np.degrees(region.orientation) + 90.0) % 180.0  # skimage: angle of the major axis from the row axis
         row, column = region.centroid
