@@ -8,7 +8,7 @@ import pytest
 import scipy.ndimage
 
 from skintopo.cli import main
-from skintopo.compare import compare_visits, detection_limits, register_visits
+from skintopo.compare import compare_visits, detection_limits, register_visits, residual_misalignment
 from skintopo.errors import SkinTopoError
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
@@ -97,3 +97,32 @@ def test_compare_command_and_bad_inputs(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "f1.x3p"), str(tmp_path / "f2.x3p"), "-o", str(tmp_path / "e")]) == 0
     assert "no wrinkles in the baseline" in capsys.readouterr().out
     assert not (tmp_path / "d").exists()
+
+
+def test_albedo_is_carried_by_the_height_registration(tmp_path, capsys):
+    big = make_surface(preset_spec("forehead-moderate", size_px=384), seed=3).height.z
+    rng = np.random.default_rng(7)
+    pigment = 0.45 + 0.1 * scipy.ndimage.gaussian_filter(rng.normal(size=big.shape), 3) / 0.03  # freckle-like albedo texture
+    angle, shift = 2.4, (1.7, -0.6)
+    heights = [HeightMap(transformed_view(big, 256, 64, a, t), 20.0) for a, t in ((0.0, (0, 0)), (angle, shift))]
+    albedos = [transformed_view(pigment, 256, 64, a, t) for a, t in ((0.0, (0, 0)), (angle, shift))]
+    comparison = compare_visits(*heights, baseline_albedo=albedos[0], follow_up_albedo=albedos[1])
+    inner = (slice(40, -40), slice(40, -40))
+    error = comparison.aligned_albedo[inner] - albedos[0][inner]
+    print(f"albedo after registration: RMS difference {np.sqrt(np.mean(error**2)):.4f} (albedo std {albedos[0].std():.4f}), "
+          f"residual misalignment {comparison.albedo_residual_px:.3f} px")
+    assert np.sqrt(np.mean(error**2)) < 0.05 * albedos[0].std()
+    assert comparison.albedo_residual_px < 0.1
+    # and the check can fail: half a pixel of misalignment is seen as such
+    assert residual_misalignment(albedos[0], scipy.ndimage.shift(albedos[0], (0.5, 0.0), mode="nearest")) == pytest.approx(0.5, abs=0.06)
+    # the command finds albedo.npy beside height.x3p (the output of measure) and writes the registered one
+    for name, height, albedo in zip("ab", heights, albedos):
+        (tmp_path / name).mkdir()
+        height.save(tmp_path / name / "height.x3p")
+        np.save(tmp_path / name / "albedo.npy", albedo.astype(np.float32))
+    assert main(["compare", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "c"), "-q"]) == 0
+    summary = json.loads((tmp_path / "c" / "changes.json").read_text())["summary"]
+    assert summary["registration"]["albedo_residual_misalignment_px"] < 0.1
+    assert np.load(tmp_path / "c" / "follow_up_albedo_registered.npy").shape == (256, 256)
+    with pytest.raises(SkinTopoError, match="albedo image is"):
+        compare_visits(*heights, baseline_albedo=albedos[0][:100], follow_up_albedo=albedos[1])

@@ -388,6 +388,8 @@ def _write_measurements(staging, args, height, albedo, source, *, title, evaluat
         writer.writerows(rows)
     _write_wrinkle_files(staging, wrinkles, segmentation)
     height.save(staging / "height.x3p")
+    if albedo is not None:  # kept so that `compare` can carry it to the baseline grid
+        np.save(staging / "albedo.npy", np.asarray(albedo, dtype=np.float32))
     write_json(staging / "summary.json", summary)
     report = build_report(title=title, height=height, albedo=albedo, parameters=measured["field"], fractal_results=fractal_results,
                           wrinkles=wrinkles, evaluations=evaluations, settings=settings, cross_sections=cross_sections)
@@ -437,6 +439,17 @@ def cmd_synth(args):
         f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s",
     )
     return 0
+
+
+def _load_albedo_beside(path):
+    """The albedo.npy a result folder holds (the output of measure), or None."""
+    path = Path(path)
+    if path.is_dir() and (path / "albedo.npy").is_file():
+        try:
+            return np.load(path / "albedo.npy")
+        except (OSError, ValueError) as error:
+            raise SkinTopoError(f"{path / 'albedo.npy'}: not a readable NumPy array ({error})") from None
+    return None
 
 
 def _load_height_input(path, pixel_um):
@@ -503,7 +516,9 @@ def cmd_compare(args):
     baseline = _load_height_input(args.baseline, args.pixel_um)
     follow_up = _load_height_input(args.follow_up, args.pixel_um)
     options = _segmentation_options(args)
-    comparison = compare_visits(baseline, follow_up, allow_scale=args.allow_scale, segmentation_options=options)
+    albedos = _load_albedo_beside(args.baseline), _load_albedo_beside(args.follow_up)
+    comparison = compare_visits(baseline, follow_up, allow_scale=args.allow_scale, segmentation_options=options,
+                                baseline_albedo=albedos[0], follow_up_albedo=albedos[1])
     limits = detection_limits(compare_visits(baseline, _load_height_input(args.repeat, args.pixel_um), segmentation_options=options)) if args.repeat else {}
     rows = []
     for name, record in comparison.texture.items():
@@ -523,11 +538,14 @@ def cmd_compare(args):
     summary = _summary("compare", args, baseline=Path(args.baseline).name, follow_up=Path(args.follow_up).name,
                        repeat=Path(args.repeat).name if args.repeat else None,
                        registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
-                                     "scale": registration.scale, "residual_misalignment_px": registration.residual_px},
+                                     "scale": registration.scale, "residual_misalignment_px": registration.residual_px,
+                                     "albedo_residual_misalignment_px": comparison.albedo_residual_px},
                        wrinkle_matches={str(k): v["follow_up_id"] for k, v in comparison.wrinkles.items()},
                        units="um, mm, mm3, %; change = follow-up - baseline")
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=inputs) as staging:
         HeightMap(comparison.difference, baseline.spacing).save(staging / "difference.x3p")
+        if comparison.aligned_albedo is not None:
+            np.save(staging / "follow_up_albedo_registered.npy", comparison.aligned_albedo.astype(np.float32))
         write_json(staging / "changes.json", {"summary": summary, "changes": rows})
         with open(staging / "changes.csv", "w", newline="", encoding="utf-8") as stream:
             writer = csv.DictWriter(stream, fieldnames=["parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable"])
@@ -536,6 +554,8 @@ def cmd_compare(args):
     if not args.quiet:
         print(f"registration: shift ({registration.shift_px[0]:+.2f}, {registration.shift_px[1]:+.2f}) px, rotation {registration.rotation_deg:+.3f} deg, "
               f"residual misalignment {registration.residual_px:.3f} px")
+        if comparison.albedo_residual_px is not None:
+            print(f"albedo carried by the same transform: residual misalignment {comparison.albedo_residual_px:.3f} px")
         if not comparison.wrinkles:
             print("no wrinkles in the baseline: texture changes only")
         for wrinkle_id, record in comparison.wrinkles.items():

@@ -11,7 +11,10 @@ optionally a small scale), in two steps:
    median absolute residual after the coarse step.
 
 The residual misalignment is measured afterwards: tile-wise phase correlation (4 x 4 tiles)
-between the baseline and the registered follow-up; its RMS, in pixels, is reported.
+between the baseline and the registered follow-up; its RMS, in pixels, is reported. The
+albedo images, when given, are carried by the same transform (:func:`apply_registration`) and
+their residual misalignment is measured the same way: an independent check, since the albedo
+did not drive the registration.
 
 Visits with different pixel sizes are refused (resampling silently would change every
 texture parameter); no overlap is refused; a visit with no wrinkles compares its texture and
@@ -133,17 +136,39 @@ def register_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fa
     return aligned_height, Registration((float(dy), float(dx)), float(theta), scale, misalignment)
 
 
+def apply_registration(image, registration: Registration, *, order=1):
+    """An image of the follow-up visit (its albedo, say) resampled onto the baseline grid
+    with the transform found from the height maps (bilinear by default; NaN outside)."""
+    image = np.asarray(image, dtype=float)
+    if image.ndim != 2:
+        raise SkinTopoError(f"apply_registration needs a single-channel image, got shape {image.shape}")
+    return _warp(image, registration.shift_px, registration.rotation_deg, registration.scale, order=order)
+
+
 def residual_misalignment(fixed, moving, tiles=4):
-    """RMS (pixels) of the tile-wise phase-correlation shifts between two aligned maps."""
+    """RMS (pixels) of the local shifts between two registered maps, one per tile of a
+    tiles x tiles grid, each found by Lucas-Kanade least squares (the shift d minimising
+    sum (moving(x + d) - fixed(x))^2 over the tile, linearised and iterated three times).
+    Phase correlation is not used here: for sub-pixel shifts of smooth content its peak
+    stays on the integer lag (a 0.5 px offset of a smooth albedo read as 0.0 in a test)."""
     rows, columns = fixed.shape
     th, tw = rows // tiles, columns // tiles
+    border = 3  # pixels at each tile edge left out of the sums (the shifted tile's edge values are guessed)
     shifts = []
     for i in range(tiles):
         for j in range(tiles):
-            a = fixed[i * th : (i + 1) * th, j * tw : (j + 1) * tw]
-            b = moving[i * th : (i + 1) * th, j * tw : (j + 1) * tw]
-            if a.std() > 0 and b.std() > 0:
-                shifts.append(phase_cross_correlation(a, b, upsample_factor=20)[0])
+            a = np.asarray(fixed[i * th : (i + 1) * th, j * tw : (j + 1) * tw], dtype=float)
+            b = np.asarray(moving[i * th : (i + 1) * th, j * tw : (j + 1) * tw], dtype=float)
+            inner = (slice(border, -border), slice(border, -border))
+            gradient = np.stack([g[inner].ravel() for g in np.gradient(a)], axis=1)
+            normal = gradient.T @ gradient
+            if a.shape[0] <= 2 * border or a.shape[1] <= 2 * border or np.linalg.cond(normal) > 1e8:
+                continue  # a flat or tiny tile says nothing about alignment
+            d = np.zeros(2)
+            for _ in range(3):
+                back = scipy.ndimage.shift(b, -d, order=3, mode="nearest")  # moving(x + d)
+                d -= np.linalg.solve(normal, gradient.T @ (back[inner] - a[inner]).ravel())
+            shifts.append(d)
     return float(np.sqrt(np.mean(np.sum(np.square(shifts), axis=1)))) if shifts else float("nan")
 
 
@@ -181,13 +206,18 @@ class Comparison:
     totals: dict  # wrinkle field totals -> change record
     baseline_wrinkles: object
     follow_up_wrinkles: object
+    aligned_albedo: np.ndarray | None = None  # follow-up albedo on the baseline grid (NaN outside)
+    albedo_residual_px: float | None = None  # residual misalignment of the albedo images (pixels RMS)
 
 
-def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None) -> Comparison:
+def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None,
+                   baseline_albedo=None, follow_up_albedo=None) -> Comparison:
     """Register ``follow_up`` onto ``baseline`` and report every change (see the module notes).
 
     Texture parameters are computed on the common overlap of both visits; wrinkles are
-    segmented in each visit independently and matched by overlap after registration.
+    segmented in each visit independently and matched by overlap after registration. When
+    both albedo images are given, the follow-up's is resampled with the same transform and
+    its residual misalignment against the baseline's is measured as for the heights.
     """
     from skintopo.evaluation import height_difference
     from skintopo.segmentation import segment_wrinkles
@@ -218,7 +248,15 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
             record.update({name: _change(getattr(wrinkle, name), getattr(other, name)) for name in fields})
         per_wrinkle[wrinkle.id] = record
     totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals}
-    return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after)
+    aligned_albedo = albedo_residual = None
+    if baseline_albedo is not None and follow_up_albedo is not None:
+        for name, image in (("baseline", baseline_albedo), ("follow-up", follow_up_albedo)):
+            if np.shape(image) != baseline.shape:
+                raise SkinTopoError(f"the {name} albedo image is {np.shape(image)}, its height map {baseline.shape}: they must match")
+        aligned_albedo = apply_registration(follow_up_albedo, registration)
+        fixed = np.nan_to_num(np.asarray(baseline_albedo, dtype=float), nan=float(np.nanmean(baseline_albedo)))
+        albedo_residual = residual_misalignment(fixed, np.where(np.isfinite(aligned_albedo), aligned_albedo, fixed))
+    return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after, aligned_albedo, albedo_residual)
 
 
 def detection_limits(repeat: Comparison):
