@@ -148,13 +148,34 @@ def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates
     a real valley is below and an edge artefact is not."""
     if candidates.size == 0:
         return candidates
-    fine = areal_gaussian_filter(level(height, order=2).z, height.spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), valid)
     margin_px = max(1, int(round(REFERENCE_MARGIN_UM / min(height.spacing))))
     skin = valid & ~scipy.ndimage.binary_dilation(np.isin(basins, candidates), iterations=margin_px)
     if skin.sum() < 0.05 * valid.sum():
         return candidates  # too little skin to judge: keep them all
-    below = areal_gaussian_filter(fine, height.spacing, REFERENCE_CUTOFF_UM, skin) - fine
+    # Both filters are smooth on the scale of lambda_s, so they run on a grid of block means
+    # whose pixel is at most lambda_s / 6 (4 samples per Gaussian sigma of the S-filter).
+    factor = max(1, int(min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM) / 6 // max(height.spacing)))
+    levelled = np.where(valid, level(height, order=2).z, 0.0)
+    z, weight, skin_share = (_block_mean(a, factor) for a in (levelled, valid.astype(float), skin.astype(float)))
+    spacing = (height.spacing[0] * factor, height.spacing[1] * factor)
+    coarse_valid = weight > 0.5
+    z = np.where(coarse_valid, z / np.where(coarse_valid, weight, 1.0), 0.0)
+    fine = areal_gaussian_filter(z, spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), coarse_valid)
+    below = areal_gaussian_filter(fine, spacing, REFERENCE_CUTOFF_UM, coarse_valid & (skin_share > 0.5)) - fine
+    rows, columns = height.shape
+    below = below[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
+
+
+def _block_mean(image, factor):
+    """Means over factor x factor blocks (the last blocks padded with zeros: weigh by a
+    block mean of the validity to undo that)."""
+    if factor == 1:
+        return image
+    rows, columns = -(-image.shape[0] // factor), -(-image.shape[1] // factor)
+    padded = np.zeros((rows * factor, columns * factor))
+    padded[: image.shape[0], : image.shape[1]] = image
+    return padded.reshape(rows, factor, columns, factor).mean(axis=(1, 3))
 
 
 def _relabel(labels):
