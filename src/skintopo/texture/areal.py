@@ -51,6 +51,12 @@ def _values(height: HeightMap):
     return values
 
 
+def _mean_removed(height: HeightMap):
+    """Heights about the mean of the valid points, 0 at masked points (which then add nothing
+    to the sums and FFTs of the spatial parameters)."""
+    return np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
+
+
 def height_parameters(height: HeightMap):
     """Sa, Sq, Ssk, Sku, Sp, Sv, Sz (ISO 25178-2 §4.1), heights about the mean plane.
 
@@ -117,7 +123,7 @@ def autocorrelation(height: HeightMap, max_lag=None):
     window costs a small FFT and has no wrap-around."""
     rows, columns = height.shape
     lag_y, lag_x = (rows - 1, columns - 1) if max_lag is None else (min(max_lag[0], rows - 1), min(max_lag[1], columns - 1))
-    z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
+    z = _mean_removed(height)
     fast = [scipy.fft.next_fast_len(rows + lag_y, real=True), scipy.fft.next_fast_len(columns + lag_x, real=True)]
 
     def correlate(a):
@@ -151,7 +157,7 @@ def _decay_window(height: HeightMap, s):
     to about 256 pixels across, with a 50% margin (the circular estimate decays sooner than
     the unbiased one). Only a guess: the caller checks it and falls back to every lag."""
     factor = max(1, min(height.shape) // 256)
-    z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
+    z = _mean_removed(height)
     rows, columns = z.shape[0] // factor, z.shape[1] // factor
     z = z[: rows * factor, : columns * factor].reshape(rows, factor, columns, factor).mean(axis=(1, 3))
     spectrum = scipy.fft.rfft2(z)
@@ -273,7 +279,7 @@ def texture_direction(height: HeightMap, *, angle_step=0.5):
     angular amplitude density of the 2-D Fourier transform of the mean-removed heights.
     A lay of parallel grooves along direction theta has its spectrum along theta + 90 degrees;
     Std reports the direction of that spectral maximum, as ISO 25178-2 §4.3.4 defines it."""
-    z = np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
+    z = _mean_removed(height)
     bins, weights, count = _angle_bins(z.shape, tuple(height.spacing), angle_step)
     amplitude = np.abs(scipy.fft.rfft2(z, workers=-1)).ravel()
     density = np.bincount(bins, weights=amplitude * weights, minlength=count)
