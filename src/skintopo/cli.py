@@ -604,6 +604,12 @@ def cmd_calibrate_lights(args):
     return 0
 
 
+def _add_output_switches(parser):
+    """--overwrite and -q/--quiet, which every command that writes an output folder takes."""
+    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, tables or messages (errors still go to stderr)")
+
+
 def _add_segmentation_options(parser):
     parser.add_argument("--cutoff-um", type=_positive_float, default=DEFAULT_CUTOFF_UM,
                         help=f"lambda_c of the segmentation band-pass (default {DEFAULT_CUTOFF_UM:g})")
@@ -627,8 +633,7 @@ def build_parser():
                              help="band to process (default all present); specular-free = SUV projection of red, green, blue")
     reconstruct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
-    reconstruct.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
-    reconstruct.add_argument("-q", "--quiet", action="store_true", help="no progress bar or table")
+    _add_output_switches(reconstruct)
     reconstruct.set_defaults(handler=cmd_reconstruct)
 
     correct = commands.add_parser("correct", help="the paper's method: per-band reconstruction, wrinkle segmentation, spectral correction")
@@ -637,8 +642,7 @@ def build_parser():
     correct.add_argument("--method", choices=["paper", "feathered"], default="paper", help="correction variant (default paper)")
     correct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR)
     _add_segmentation_options(correct)
-    correct.add_argument("--overwrite", action="store_true")
-    correct.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(correct)
     correct.set_defaults(handler=cmd_correct)
 
     evaluate = commands.add_parser("evaluate", help="accuracy of a height map against a reference (ground truth, replica)")
@@ -648,8 +652,7 @@ def build_parser():
     evaluate.add_argument("--wrinkles", type=Path, help="wrinkle label image (ground_truth/wrinkles.png) for in-wrinkle errors and depths")
     evaluate.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
     evaluate.add_argument("--no-register", action="store_true", help="do not search for a sub-pixel translation")
-    evaluate.add_argument("--overwrite", action="store_true")
-    evaluate.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(evaluate)
     evaluate.set_defaults(handler=cmd_evaluate)
 
     demo = commands.add_parser("demo", help="simulate a forehead capture, reconstruct and correct it, compare with the truth")
@@ -658,8 +661,7 @@ def build_parser():
     demo.add_argument("--skin", choices=["light", "dark"], default="light")
     demo.add_argument("--size", type=_size, default=256, help="field size in pixels at 20 um (default 256)")
     demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--overwrite", action="store_true")
-    demo.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(demo)
     demo.set_defaults(handler=cmd_demo)
 
     measure = commands.add_parser("measure", help="surface texture (ISO 25178-2), volume and fractal parameters of a height map or acquisition")
@@ -670,8 +672,7 @@ def build_parser():
     measure.add_argument("--p", type=float, default=10.0, help="material ratio p of Vmp/Vmc/Vvc (default 10 %%)")
     measure.add_argument("--q", type=float, default=80.0, help="material ratio q of Vmc/Vvc/Vvv (default 80 %%)")
     measure.add_argument("--region", type=_parse_region, action="append", default=[], help="extra region NAME=x0,y0,x1,y1 in um (repeatable)")
-    measure.add_argument("--overwrite", action="store_true")
-    measure.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(measure)
     measure.add_argument("--solver", choices=SOLVERS, default="least-squares", help="photometric stereo solver (acquisitions)")
     measure.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR, help="normal integration (acquisitions)")
     _add_segmentation_options(measure)
@@ -682,8 +683,7 @@ def build_parser():
     wrinkles.add_argument("-o", "--out", type=Path, required=True, help="output folder (wrinkles.csv, wrinkles.json, wrinkles_overlay.png)")
     wrinkles.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
     _add_segmentation_options(wrinkles)
-    wrinkles.add_argument("--overwrite", action="store_true")
-    wrinkles.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(wrinkles)
     wrinkles.set_defaults(handler=cmd_wrinkles)
 
     compare = commands.add_parser("compare", help="before/after: register two visits, difference map, change of every parameter")
@@ -694,8 +694,7 @@ def build_parser():
     compare.add_argument("--allow-scale", action="store_true", help="also fit a small scale change")
     compare.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps")
     _add_segmentation_options(compare)
-    compare.add_argument("--overwrite", action="store_true")
-    compare.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(compare)
     compare.set_defaults(handler=cmd_compare)
 
     batch = commands.add_parser("batch", help="a whole study: measure every acquisition, compare follow-ups, one table")
@@ -713,16 +712,14 @@ def build_parser():
     lights.add_argument("--mask", type=Path, help="sphere mask (default: found automatically)")
     lights.add_argument("--matte", action="store_true", help="a matte white sphere: directions and relative intensities by least squares")
     lights.add_argument("-o", "--out", type=Path, required=True, help="lights.json to write")
-    lights.add_argument("--overwrite", action="store_true")
-    lights.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(lights)
     lights.set_defaults(handler=cmd_calibrate_lights)
 
     tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
     tables.add_argument("-o", "--out", type=Path, required=True)
     tables.add_argument("--size", type=_size, default=256, help="field size in pixels (default 256)")
     tables.add_argument("--pixel-um", type=_positive_float, default=20.0)
-    tables.add_argument("--overwrite", action="store_true")
-    tables.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(tables)
     tables.set_defaults(handler=cmd_paper_tables)
 
     synth = commands.add_parser("synth", help="simulate a skin acquisition with exact ground truth")
@@ -740,8 +737,7 @@ def build_parser():
     synth.add_argument("--no-translucency", action="store_true")
     synth.add_argument("--no-shadows", action="store_true")
     synth.add_argument("--no-albedo-variation", action="store_true")
-    synth.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
-    synth.add_argument("-q", "--quiet", action="store_true")
+    _add_output_switches(synth)
     synth.set_defaults(handler=cmd_synth)
     return parser
 
