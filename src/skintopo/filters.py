@@ -163,9 +163,12 @@ def polynomial_form(z, spacing, order=1, mask=None):
     # validity weight, U[c, a] = u_c^a and V[r, b] = v_r^b. No (pixels x terms) basis array.
     u_powers = np.linspace(-1, 1, columns)[:, None] ** np.arange(2 * order + 1)[None, :]
     v_powers = np.linspace(-1, 1, rows)[:, None] ** np.arange(2 * order + 1)[None, :]
-    weight = valid.astype(np.float64)
-    moments = v_powers.T @ (weight @ u_powers)  # [b, a] = sum_valid u^a v^b
-    data = v_powers[:, : order + 1].T @ (np.where(valid, z, 0.0) @ u_powers[:, : order + 1])
+    if valid.all():  # every point: the moments are products of two sums
+        moments = np.outer(v_powers.sum(axis=0), u_powers.sum(axis=0))  # [b, a] = sum u^a v^b
+        data = v_powers[:, : order + 1].T @ (z @ u_powers[:, : order + 1])
+    else:
+        moments = v_powers.T @ (valid.astype(np.float64) @ u_powers)
+        data = v_powers[:, : order + 1].T @ (np.where(valid, z, 0.0) @ u_powers[:, : order + 1])
     exponents = [(i, j) for i in range(order + 1) for j in range(order + 1 - i)]
     gram = np.array([[moments[j + jj, i + ii] for (ii, jj) in exponents] for (i, j) in exponents])
     # Normal equations: the monomials on [-1, 1] are well conditioned for the low orders used
@@ -180,6 +183,24 @@ def polynomial_form(z, spacing, order=1, mask=None):
     for (i, j), c in zip(exponents, coefficients):
         table[j, i] = c
     return v_powers[:, : order + 1] @ table @ u_powers[:, : order + 1].T
+
+
+def block_mean(image, factor):
+    """Means over factor x factor blocks, the image zero-padded to whole blocks (weigh by the
+    block mean of a validity image to undo the padding where it matters). Summed with strided
+    slices: about 4x faster than a reshape and ``mean(axis=(1, 3))``."""
+    if factor == 1:
+        return np.asarray(image, dtype=float)
+    rows, columns = -(-image.shape[0] // factor), -(-image.shape[1] // factor)
+    padded = np.zeros((rows * factor, columns * factor))
+    padded[: image.shape[0], : image.shape[1]] = image
+    by_rows = padded[::factor].copy()
+    for offset in range(1, factor):
+        by_rows += padded[offset::factor]
+    total = by_rows[:, ::factor].copy()
+    for offset in range(1, factor):
+        total += by_rows[:, offset::factor]
+    return total / (factor * factor)
 
 
 def level(height: HeightMap, order=1):

@@ -15,8 +15,9 @@ from skintopo.errors import SkinTopoError
 
 
 
-def _read_only(array):
-    array = np.array(array, copy=True)
+def _frozen(array):
+    """The array, made read-only (callers pass arrays they have just created, never the
+    caller's own: the inputs are copied, not locked)."""
     array.setflags(write=False)
     return array
 
@@ -59,11 +60,11 @@ class HeightMap:
         mask = np.isfinite(z) if self.mask is None else np.asarray(self.mask, dtype=bool)
         if mask.shape != z.shape:
             raise SkinTopoError(f"mask shape {mask.shape} differs from height map shape {z.shape}")
-        mask = mask & np.isfinite(z)
+        mask = mask & np.isfinite(z)  # new arrays: copies of the inputs
         z = np.where(mask, z, np.nan)
-        object.__setattr__(self, "z", _read_only(z))
+        object.__setattr__(self, "z", _frozen(z))
         object.__setattr__(self, "spacing", spacing)
-        object.__setattr__(self, "mask", _read_only(mask))
+        object.__setattr__(self, "mask", _frozen(mask))
 
     @property
     def shape(self):

@@ -36,7 +36,7 @@ from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, gaussian_bandpass, level
+from skintopo.filters import areal_gaussian_filter, block_mean, gaussian_bandpass, level
 from skintopo.heightmap import HeightMap
 
 DEFAULT_CUTOFF_UM = 8000.0
@@ -156,7 +156,7 @@ def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates
     # whose pixel is at most lambda_s / 6 (4 samples per Gaussian sigma of the S-filter).
     factor = max(1, int(min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM) / 6 // max(height.spacing)))
     levelled = np.where(valid, level(height, order=2).z, 0.0)
-    z, weight, skin_share = (_block_mean(a, factor) for a in (levelled, valid.astype(float), skin.astype(float)))
+    z, weight, skin_share = (block_mean(a, factor) for a in (levelled, valid.astype(float), skin.astype(float)))
     spacing = (height.spacing[0] * factor, height.spacing[1] * factor)
     coarse_valid = weight > 0.5
     z = np.where(coarse_valid, z / np.where(coarse_valid, weight, 1.0), 0.0)
@@ -165,17 +165,6 @@ def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates
     rows, columns = height.shape
     below = below[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
-
-
-def _block_mean(image, factor):
-    """Means over factor x factor blocks (the last blocks padded with zeros: weigh by a
-    block mean of the validity to undo that)."""
-    if factor == 1:
-        return image
-    rows, columns = -(-image.shape[0] // factor), -(-image.shape[1] // factor)
-    padded = np.zeros((rows * factor, columns * factor))
-    padded[: image.shape[0], : image.shape[1]] = image
-    return padded.reshape(rows, factor, columns, factor).mean(axis=(1, 3))
 
 
 def _relabel(labels):

@@ -8,17 +8,19 @@ dimension by four classic estimators (Gwyddion's definitions) plus a physically 
 
 from __future__ import annotations
 
+import functools
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from skintopo.errors import SkinTopoError
 from skintopo.filters import level
 from skintopo.heightmap import HeightMap
 from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, FLAT_SQ_UM, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
 from skintopo.texture.fractal import METHODS as FRACTAL_METHODS
-from skintopo.texture.fractal import FractalResult, fractal_dimension, resample_for_fractal
+from skintopo.texture.fractal import RESAMPLED_METHODS, FractalResult, fractal_dimension, resample_for_fractal
 from skintopo.texture.profile import PROFILE_UNITS, line_profile_parameters, profile_parameters
 
 __all__ = ["Parameter", "measure_texture", "profile_parameters", "line_profile_parameters", "fractal_dimension", "PROFILE_UNITS"]
@@ -73,18 +75,23 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     """
     if not height.mask.any():
         raise SkinTopoError("the height map has no valid points")
-    surface = level(height, level_order) if level_order is not None else height
-    # The autocorrelation (spatial) and the fractal pyramids are independent of the rest and
-    # spend their time inside NumPy/SciPy loops that release the GIL: run them beside it.
-    with ThreadPoolExecutor(max_workers=2) as pool:
+    methods = tuple(fractal_methods)
+    on_resampled = tuple(m for m in methods if m in RESAMPLED_METHODS)
+    # The parts are independent and spend their time inside NumPy/SciPy loops that release
+    # the GIL: two workers, longest parts first. BLAS is held to one thread meanwhile:
+    # OpenBLAS's idle workers spin after each call and would take the other core.
+    with _thread_pools().limit(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=2) as pool:
+        surface = level(height, level_order) if level_order is not None else height
         spatial = pool.submit(spatial_parameters, surface)
-        fractal = pool.submit(_fractal_estimates, surface, tuple(fractal_methods))
-        values = {}
-        values.update(height_parameters(surface))
-        values.update(hybrid_parameters(surface))
-        values.update(spatial.result())
-        values.update(functional_parameters(surface, p=p, q=q))
-        estimates = fractal.result()
+        resampled_estimates = pool.submit(_fractal_estimates, surface, on_resampled)
+        other_estimates = pool.submit(_fractal_estimates, surface, tuple(m for m in methods if m not in on_resampled))
+        hybrid = pool.submit(hybrid_parameters, surface)
+        functional = pool.submit(functional_parameters, surface, p=p, q=q)
+        values = height_parameters(surface)
+        for part in (hybrid, spatial, functional):
+            values.update(part.result())
+        by_method = {result.method: result for result in resampled_estimates.result() + other_estimates.result()}
+    estimates = [by_method[method] for method in methods]
     references = dict(_REFERENCES)
     for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
         references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
@@ -97,15 +104,22 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     return parameters
 
 
+@functools.cache
+def _thread_pools():
+    """The BLAS and OpenMP libraries loaded in this process (found once, on first use, when
+    NumPy's and SciPy's are both loaded)."""
+    return ThreadpoolController()
+
+
 def _fractal_estimates(surface, methods):
     """Every estimator's result; on a flat map (height range below 1e-9 um, levelling
     round-off) D is undefined: NaN, with no log-log points, instead of an error that would
     hide the other parameters."""
     if not methods:
         return []
-    resampled = resample_for_fractal(surface)
-    if np.ptp(resampled[0]) < FLAT_SQ_UM:
+    if np.ptp(surface.z[surface.mask]) < FLAT_SQ_UM:
         return [FractalResult(method, float("nan"), np.array([]), np.array([]), float("nan"), float("nan")) for method in methods]
+    resampled = resample_for_fractal(surface) if set(methods) & set(RESAMPLED_METHODS) else None
     return [fractal_dimension(surface, method, resampled) for method in methods]
 
 

@@ -36,6 +36,7 @@ import scipy.fft
 import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
+from skintopo.filters import block_mean
 from skintopo.heightmap import HeightMap
 
 DEFAULT_P = 10.0  # % (ISO 25178-2 default for Vmp, Vmc, Vvc)
@@ -45,6 +46,9 @@ FLAT_SQ_UM = 1e-9  # below this Sq the map is flat: Ssk and Sku are undefined
 
 
 def _values(height: HeightMap):
+    """The valid heights as a flat array (a view when nothing is masked)."""
+    if height.mask.all():
+        return height.z.ravel()
     values = height.z[height.mask]
     if values.size == 0:
         raise SkinTopoError("the height map has no valid points")
@@ -54,6 +58,8 @@ def _values(height: HeightMap):
 def _mean_removed(height: HeightMap):
     """Heights about the mean of the valid points, 0 at masked points (which then add nothing
     to the sums and FFTs of the spatial parameters)."""
+    if height.mask.all():
+        return height.z - height.z.mean()
     return np.where(height.mask, height.z - height.z[height.mask].mean(), 0.0)
 
 
@@ -95,20 +101,21 @@ def hybrid_parameters(height: HeightMap):
     sdq = float(np.sqrt(mean(slope_x2) / dx**2 + mean(slope_y2) / dy**2))
     # the four corner triangles of each cell: sqrt((dy dzx)^2 + (dx dzy)^2 + (dx dy)^2) is twice
     # the area of the right triangle spanned by the two edge vectors at that corner
-    horizontal = (dy * dy) * slope_x2  # (rows, columns - 1): bottom [:-1], top [1:]
-    vertical = (dx * dx) * slope_y2  # (rows - 1, columns): left [:, :-1], right [:, 1:]
+    horizontal = slope_x2  # scaled in place: (rows, columns - 1), bottom [:-1], top [1:]
+    horizontal *= dy * dy
+    vertical = slope_y2  # (rows - 1, columns): left [:, :-1], right [:, 1:]
+    vertical *= dx * dx
     vertical += (dx * dy) ** 2
-    corners = np.zeros((z.shape[0] - 1, z.shape[1] - 1))
-    buffer = np.empty_like(corners)
-    for edge_x in (horizontal[:-1], horizontal[1:]):
-        for edge_y in (vertical[:, :-1], vertical[:, 1:]):
-            np.add(edge_x, edge_y, out=buffer)
-            corners += np.sqrt(buffer, out=buffer)
+    corners = [(edge_x, edge_y) for edge_x in (horizontal[:-1], horizontal[1:]) for edge_y in (vertical[:, :-1], vertical[:, 1:])]
+    cell_sum = np.sqrt(np.add(*corners[0]))
+    for edges in corners[1:]:
+        corner = np.add(*edges)
+        cell_sum += np.sqrt(corner, out=corner)
     if complete:
-        total, cells = corners.sum(), corners.size
+        total, cells = cell_sum.sum(), cell_sum.size
     else:
-        finite = np.isfinite(corners)
-        total, cells = corners[finite].sum(), finite.sum()
+        finite = np.isfinite(cell_sum)
+        total, cells = cell_sum[finite].sum(), finite.sum()
     sdr = float((0.25 * total / (cells * dx * dy) - 1) * 100)
     return {"Sdq": sdq, "Sdr": sdr}
 
@@ -121,23 +128,39 @@ def autocorrelation(height: HeightMap, max_lag=None):
     divided by its number of overlapping valid points; lags without overlap are NaN. The
     zero-padding is only as large as the lags asked for need (size + max lag), so a small
     window costs a small FFT and has no wrap-around."""
-    rows, columns = height.shape
+    return _autocorrelation(_mean_removed(height), height.mask, max_lag)
+
+
+def _autocorrelation(z, mask, max_lag):
+    rows, columns = z.shape
     lag_y, lag_x = (rows - 1, columns - 1) if max_lag is None else (min(max_lag[0], rows - 1), min(max_lag[1], columns - 1))
-    z = _mean_removed(height)
-    fast = [scipy.fft.next_fast_len(rows + lag_y, real=True), scipy.fft.next_fast_len(columns + lag_x, real=True)]
-
-    def correlate(a):
-        spectrum = scipy.fft.rfft2(a, fast, workers=-1)
-        circular = scipy.fft.irfft2(spectrum.real**2 + spectrum.imag**2, fast, workers=-1)
-        return _centred_lags(circular, lag_y, lag_x)
-
-    raw = correlate(z)
-    if height.mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|)
+    raw = _linear_correlation(z, lag_y, lag_x)
+    if mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|)
         overlap = np.outer(rows - np.abs(np.arange(-lag_y, lag_y + 1)), columns - np.abs(np.arange(-lag_x, lag_x + 1))).astype(float)
     else:
-        overlap = np.round(correlate(height.mask.astype(float)))
+        overlap = np.round(_linear_correlation(mask.astype(float), lag_y, lag_x))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(overlap > 0, raw / overlap, np.nan)
+
+
+def _linear_correlation(a, lag_y, lag_x):
+    """sum_ij a[i, j] a[i + t_y, j + t_x] for |t_y| <= lag_y, |t_x| <= lag_x (zero lag in the
+    middle), by FFT with zero-padding to size + lag. The 2-D transforms are written as their
+    two 1-D passes so that no work is spent on what is known or not wanted: the forward row
+    pass skips the padding rows (zeros), the inverse row pass runs only on the row lags
+    asked for (scipy.fft.rfft2/irfft2 would transform every padded row)."""
+    rows, columns = a.shape
+    size_y = scipy.fft.next_fast_len(rows + lag_y, real=True)
+    size_x = scipy.fft.next_fast_len(columns + lag_x, real=True)
+    spectrum = scipy.fft.rfft(a, n=size_x, axis=1, workers=-1)
+    spectrum = scipy.fft.fft(spectrum, n=size_y, axis=0, workers=-1, overwrite_x=True)
+    power = spectrum.real**2
+    power += spectrum.imag**2
+    del spectrum
+    by_row_lag = scipy.fft.ifft(power, axis=0, workers=-1, overwrite_x=True)
+    by_row_lag = np.concatenate([by_row_lag[size_y - lag_y :], by_row_lag[: lag_y + 1]])
+    circular = scipy.fft.irfft(by_row_lag, n=size_x, axis=1, workers=-1, overwrite_x=True)
+    return np.concatenate([circular[:, size_x - lag_x :], circular[:, : lag_x + 1]], axis=1)
 
 
 def _centred_lags(circular, lag_y, lag_x):
@@ -151,15 +174,14 @@ def _centred_lags(circular, lag_y, lag_x):
     return out
 
 
-def _decay_window(height: HeightMap, s):
+def _decay_window(z, s):
     """Lags (rows, columns) that the central region of the autocorrelation above s probably
     needs: estimated from the circular (unpadded) autocorrelation of the map block-averaged
     to about 256 pixels across, with a 50% margin (the circular estimate decays sooner than
     the unbiased one). Only a guess: the caller checks it and falls back to every lag."""
-    factor = max(1, min(height.shape) // 256)
-    z = _mean_removed(height)
-    rows, columns = z.shape[0] // factor, z.shape[1] // factor
-    z = z[: rows * factor, : columns * factor].reshape(rows, factor, columns, factor).mean(axis=(1, 3))
+    factor = max(1, min(z.shape) // 256)
+    z = block_mean(z, factor)
+    rows, columns = z.shape
     spectrum = scipy.fft.rfft2(z)
     circular = scipy.fft.irfft2(spectrum.real**2 + spectrum.imag**2, z.shape)
     half_y, half_x = (rows - 1) // 2, (columns - 1) // 2
@@ -184,8 +206,9 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
     """
     dy, dx = height.spacing
     rows, columns = height.shape
-    for max_lag in (_decay_window(height, s), (rows - 1, columns - 1)):
-        acf = autocorrelation(height, max_lag)
+    z = _mean_removed(height)
+    for max_lag in (_decay_window(z, s), (rows - 1, columns - 1)):
+        acf = _autocorrelation(z, height.mask, max_lag)
         centre = np.array([(acf.shape[0] - 1) // 2, (acf.shape[1] - 1) // 2])
         threshold = s * acf[centre[0], centre[1]]
         labels, _ = scipy.ndimage.label(acf > threshold)  # NaN lags compare False
@@ -198,7 +221,7 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
     lengths = _decay_lengths(acf, centre, threshold, (dy, dx), directions, reach)
     sal = float(np.nanmin(lengths)) if np.isfinite(lengths).any() else float("nan")
     str_ = float(sal / np.nanmax(lengths)) if np.isfinite(lengths).any() and not touches else float("nan")
-    return {"Sal": sal, "Str": str_, "Std": texture_direction(height)}
+    return {"Sal": sal, "Str": str_, "Std": _texture_direction(z, height.spacing)}
 
 
 def _decay_lengths(acf, centre, threshold, spacing, directions, reach):
@@ -279,8 +302,11 @@ def texture_direction(height: HeightMap, *, angle_step=0.5):
     angular amplitude density of the 2-D Fourier transform of the mean-removed heights.
     A lay of parallel grooves along direction theta has its spectrum along theta + 90 degrees;
     Std reports the direction of that spectral maximum, as ISO 25178-2 §4.3.4 defines it."""
-    z = _mean_removed(height)
-    bins, weights, count = _angle_bins(z.shape, tuple(height.spacing), angle_step)
+    return _texture_direction(_mean_removed(height), height.spacing, angle_step)
+
+
+def _texture_direction(z, spacing, angle_step=0.5):
+    bins, weights, count = _angle_bins(z.shape, tuple(spacing), angle_step)
     amplitude = np.abs(scipy.fft.rfft2(z, workers=-1)).ravel()
     density = np.bincount(bins, weights=amplitude * weights, minlength=count)
     return float(np.argmax(density) * angle_step)

@@ -55,6 +55,7 @@ from skintopo.heightmap import HeightMap
 
 METHODS = ("partitioning", "cube-counting", "triangulation", "power-spectrum")
 VARIANTS = ("power-spectrum-areal",)
+RESAMPLED_METHODS = ("partitioning", "cube-counting", "triangulation")  # work on resample_for_fractal's field
 MIN_COLUMNS = 8
 
 
@@ -157,15 +158,20 @@ def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
     h = z.max()
     if h <= 0:
         raise SkinTopoError("cube counting: the map is flat")
-    # Column extremes level by level: the finest columns (2 x 2 samples) from four shifted
-    # views, each coarser column (sharing its edges) as the extreme of its four children.
-    low = np.minimum(np.minimum(z[:-1, :-1], z[1:, :-1]), np.minimum(z[:-1, 1:], z[1:, 1:]))
-    high = np.maximum(np.maximum(z[:-1, :-1], z[1:, :-1]), np.maximum(z[:-1, 1:], z[1:, 1:]))
+    # Column extremes level by level: the finest columns (2 x 2 samples) from adjacent rows,
+    # then adjacent columns; each coarser column (sharing its edges) as the extreme of its
+    # four children. A column holds m - floor(low/eps) - floor((h - high)/eps) cubes; the sum
+    # over columns is taken term by term (whole numbers: exact in floating point).
+    low, high = np.minimum(z[:-1], z[1:]), np.maximum(z[:-1], z[1:])
+    low, high = np.minimum(low[:, :-1], low[:, 1:]), np.maximum(high[:, :-1], high[:, 1:])
     counts = {}
     for level in range(k - 1, -1, -1):
         m = 2 ** (level + 1)  # columns per side, each 2^k / m pixels wide
         eps = h / m
-        counts[level] = (m - np.floor(low / eps) - np.floor((h - high) / eps)).sum()
+        below = np.floor(np.divide(low, eps))
+        above = np.subtract(h, high)
+        above /= eps
+        counts[level] = m * low.size - below.sum() - np.floor(above, out=above).sum()
         if level:
             low = np.minimum(np.minimum(low[::2, ::2], low[1::2, ::2]), np.minimum(low[::2, 1::2], low[1::2, 1::2]))
             high = np.maximum(np.maximum(high[::2, ::2], high[1::2, ::2]), np.maximum(high[::2, 1::2], high[1::2, 1::2]))
@@ -185,18 +191,20 @@ def triangulation(height: HeightMap, resampled=None) -> FractalResult:
     for level in range(k + 1):
         s = 2**k // 2**level
         corners = z[::s, ::s]
-        a, b, c, d = corners[:-1, :-1], corners[1:, :-1], corners[:-1, 1:], corners[1:, 1:]  # (i,j), (i+1,j), (i,j+1), (i+1,j+1)
-        area = _right_triangle_area(s, a, b, c) + _right_triangle_area(s, d, b, c)
+        # Each cell (i, j) is split into the triangles (i,j)-(i+1,j)-(i,j+1) and
+        # (i+1,j+1)-(i+1,j)-(i,j+1), both right-angled in plan: area s/2 sqrt(s^2 + a^2 + b^2)
+        # with a, b the height differences along their legs (half the cross product of the
+        # legs; Gwyddion evaluates the same area by Heron's formula).
+        along_rows = np.square(np.diff(corners, axis=0))  # (i+1, j) - (i, j)
+        along_rows += s * s
+        along_columns = np.square(np.diff(corners, axis=1))  # (i, j+1) - (i, j)
+        total = 0.0
+        for legs in ((along_rows[:, :-1], along_columns[:-1]), (along_rows[:, 1:], along_columns[1:])):
+            squared = np.add(*legs)
+            total += np.sqrt(squared, out=squared).sum()
         xs.append((level - k) * np.log(2))
-        ys.append(np.log(area.sum()))
+        ys.append(np.log(0.5 * s * total))
     return _fit("triangulation", xs, ys, lambda a: 2 + a)
-
-
-def _right_triangle_area(s, z0, z1, z2):
-    """Area of triangles with vertices (0,0,z0), (s,0,z1), (0,s,z2) (right-angled in plan):
-    half the cross product of the two legs, s/2 sqrt(s^2 + (z1-z0)^2 + (z2-z0)^2). Gwyddion
-    evaluates the same area by Heron's formula; one square root instead of four."""
-    return 0.5 * s * np.sqrt(s * s + (z1 - z0) ** 2 + (z2 - z0) ** 2)
 
 
 def row_power_spectrum(height: HeightMap) -> np.ndarray:
