@@ -18,7 +18,9 @@ from threadpoolctl import ThreadpoolController
 from skintopo.errors import SkinTopoError
 from skintopo.filters import level
 from skintopo.heightmap import HeightMap
-from skintopo.texture.areal import DEFAULT_P, DEFAULT_Q, FLAT_SQ_UM, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
+from skintopo.texture.areal import (
+    DEFAULT_P, DEFAULT_Q, FLAT_SQ_UM, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters, valid_heights,
+)
 from skintopo.texture.fractal import METHODS as FRACTAL_METHODS
 from skintopo.texture.fractal import RESAMPLED_METHODS, FractalResult, fractal_dimension, resample_for_fractal
 from skintopo.texture.profile import PROFILE_UNITS, line_profile_parameters, profile_parameters
@@ -80,17 +82,17 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     # The parts are independent and spend their time inside NumPy/SciPy loops that release
     # the GIL: two workers, longest parts first. BLAS is held to one thread meanwhile:
     # OpenBLAS's idle workers spin after each call and would take the other core.
-    with _thread_pools().limit(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=2) as pool:
+    with _thread_pools().limit(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=1) as pool:
         surface = level(height, level_order) if level_order is not None else height
         spatial = pool.submit(spatial_parameters, surface)
-        resampled_estimates = pool.submit(_fractal_estimates, surface, on_resampled)
-        other_estimates = pool.submit(_fractal_estimates, surface, tuple(m for m in methods if m not in on_resampled))
-        hybrid = pool.submit(hybrid_parameters, surface)
         functional = pool.submit(functional_parameters, surface, p=p, q=q)
-        values = height_parameters(surface)
-        for part in (hybrid, spatial, functional):
-            values.update(part.result())
-        by_method = {result.method: result for result in resampled_estimates.result() + other_estimates.result()}
+        heights = pool.submit(height_parameters, surface)
+        estimates = _fractal_estimates(surface, on_resampled) + _fractal_estimates(surface, tuple(m for m in methods if m not in on_resampled))
+        hybrid = hybrid_parameters(surface)
+        values = heights.result()
+        for part in (hybrid, spatial.result(), functional.result()):
+            values.update(part)
+        by_method = {result.method: result for result in estimates}
     estimates = [by_method[method] for method in methods]
     references = dict(_REFERENCES)
     for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
@@ -117,7 +119,7 @@ def _fractal_estimates(surface, methods):
     hide the other parameters."""
     if not methods:
         return []
-    if np.ptp(surface.z[surface.mask]) < FLAT_SQ_UM:
+    if np.ptp(valid_heights(surface)) < FLAT_SQ_UM:
         return [FractalResult(method, float("nan"), np.array([]), np.array([]), float("nan"), float("nan")) for method in methods]
     resampled = resample_for_fractal(surface) if set(methods) & set(RESAMPLED_METHODS) else None
     return [fractal_dimension(surface, method, resampled) for method in methods]

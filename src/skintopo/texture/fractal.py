@@ -52,6 +52,7 @@ import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
+from skintopo.texture.areal import row_blocks
 
 METHODS = ("partitioning", "cube-counting", "triangulation", "power-spectrum")
 VARIANTS = ("power-spectrum-areal",)
@@ -89,27 +90,34 @@ def _complete_field(height: HeightMap):
 def resample_for_fractal(height: HeightMap):
     """Bilinear, pixel-centre resampling of the whole field to (2^k + 1)^2, k = round(log2 xres).
 
+    Gwyddion's bilinear resampling is the product of two linear ones, so it is done one axis
+    at a time (same numbers, fewer operations), block by block of output rows.
     Returns (z, k); pass it as ``resampled=`` to several estimators to resample only once."""
     z = _complete_field(height)
     rows, columns = z.shape
     k = int(round(np.log2(columns)))
     n = 2**k + 1
-    return _linear_resample(_linear_resample(z, n, axis=1), n, axis=0), k
+    column_lower, column_fraction = _linear_weights(columns, n)
+    row_lower, row_fraction = _linear_weights(rows, n)
+    out = np.empty((n, n))
+    for start, stop in row_blocks(n):
+        first = row_lower[start]
+        block = z[first : row_lower[stop - 1] + 2]
+        along_rows = _interpolate(block, column_lower, column_fraction[None, :], axis=1)
+        out[start:stop] = _interpolate(along_rows, row_lower[start:stop] - first, row_fraction[start:stop, None], axis=0)
+    return out, k
 
 
-def _linear_resample(z, n, axis):
-    """Linear interpolation of z to n samples along ``axis`` with pixel-centre mapping,
-    x_i = (i + 0.5) size / n - 0.5, clamped to the ends (Gwyddion's bilinear resampling is the
-    product of two of these, so doing one axis at a time gives the same numbers faster)."""
-    size = z.shape[axis]
+def _linear_weights(size, n):
+    """Linear interpolation of ``size`` samples at n points with pixel-centre mapping,
+    x_i = (i + 0.5) size / n - 0.5, clamped to the ends: (lower sample, fraction) of each."""
     coords = ((np.arange(n) + 0.5) * size / n - 0.5).clip(0, size - 1)
-    lower = np.minimum(coords.astype(np.intp), max(size - 2, 0))
-    shape = [1, 1]
-    shape[axis] = n
-    fraction = (coords - lower).reshape(shape)
+    lower = np.minimum(coords.astype(np.intp), size - 2)
+    return lower, coords - lower
+
+
+def _interpolate(z, lower, fraction, axis):
     start = z.take(lower, axis=axis)
-    if size == 1:
-        return start
     return start + fraction * (z.take(lower + 1, axis=axis) - start)
 
 
@@ -159,25 +167,41 @@ def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
     if h <= 0:
         raise SkinTopoError("cube counting: the map is flat")
     # Column extremes level by level: the finest columns (2 x 2 samples) from adjacent rows,
-    # then adjacent columns; each coarser column (sharing its edges) as the extreme of its
-    # four children. A column holds m - floor(low/eps) - floor((h - high)/eps) cubes; the sum
-    # over columns is taken term by term (whole numbers: exact in floating point).
-    low, high = np.minimum(z[:-1], z[1:]), np.maximum(z[:-1], z[1:])
-    low, high = np.minimum(low[:, :-1], low[:, 1:]), np.maximum(high[:, :-1], high[:, 1:])
-    counts = {}
-    for level in range(k - 1, -1, -1):
-        m = 2 ** (level + 1)  # columns per side, each 2^k / m pixels wide
-        eps = h / m
-        below = np.floor(np.divide(low, eps))
-        above = np.subtract(h, high)
-        above /= eps
-        counts[level] = m * low.size - below.sum() - np.floor(above, out=above).sum()
+    # then adjacent columns, in row blocks (with their count and their 2 x 2 pooling into
+    # the next level); each coarser column (sharing its edges) as the extreme of its four
+    # children.
+    size = 2**k
+    counts = {k - 1: 0.0}
+    low, high = np.empty((size // 2, size // 2)), np.empty((size // 2, size // 2))
+    for start, stop in row_blocks(size):  # even block bounds: the 2 x 2 pooling stays inside
+        block = z[start : stop + 1]
+        block_low, block_high = np.minimum(block[:-1], block[1:]), np.maximum(block[:-1], block[1:])
+        block_low, block_high = np.minimum(block_low[:, :-1], block_low[:, 1:]), np.maximum(block_high[:, :-1], block_high[:, 1:])
+        counts[k - 1] += _cube_count(block_low, block_high, h, size)
+        low[start // 2 : stop // 2], high[start // 2 : stop // 2] = _pool(block_low, np.minimum), _pool(block_high, np.maximum)
+    for level in range(k - 2, -1, -1):
+        counts[level] = _cube_count(low, high, h, 2 ** (level + 1))
         if level:
-            low = np.minimum(np.minimum(low[::2, ::2], low[1::2, ::2]), np.minimum(low[::2, 1::2], low[1::2, 1::2]))
-            high = np.maximum(np.maximum(high[::2, ::2], high[1::2, ::2]), np.maximum(high[::2, 1::2], high[1::2, 1::2]))
+            low, high = _pool(low, np.minimum), _pool(high, np.maximum)
     xs = [(level + 1 - k) * np.log(2) for level in range(k)]
     ys = [np.log(counts[level]) for level in range(k)]
     return _fit("cube-counting", xs, ys, lambda a: a)
+
+
+def _cube_count(low, high, h, m):
+    """Cubes of height eps = h / m over columns with extremes (low, high) of the heights
+    above the global minimum: m - floor(low/eps) - floor((h - high)/eps) each, summed term by
+    term (whole numbers: exact in floating point)."""
+    eps = h / m
+    below = np.floor(np.divide(low, eps))
+    above = np.subtract(h, high)
+    above /= eps
+    return m * low.size - below.sum() - np.floor(above, out=above).sum()
+
+
+def _pool(a, extreme):
+    """2 x 2 pooling by ``extreme`` (np.minimum or np.maximum)."""
+    return extreme(extreme(a[::2, ::2], a[1::2, ::2]), extreme(a[::2, 1::2], a[1::2, 1::2]))
 
 
 def triangulation(height: HeightMap, resampled=None) -> FractalResult:
@@ -191,20 +215,25 @@ def triangulation(height: HeightMap, resampled=None) -> FractalResult:
     for level in range(k + 1):
         s = 2**k // 2**level
         corners = z[::s, ::s]
-        # Each cell (i, j) is split into the triangles (i,j)-(i+1,j)-(i,j+1) and
-        # (i+1,j+1)-(i+1,j)-(i,j+1), both right-angled in plan: area s/2 sqrt(s^2 + a^2 + b^2)
-        # with a, b the height differences along their legs (half the cross product of the
-        # legs; Gwyddion evaluates the same area by Heron's formula).
-        along_rows = np.square(np.diff(corners, axis=0))  # (i+1, j) - (i, j)
-        along_rows += s * s
-        along_columns = np.square(np.diff(corners, axis=1))  # (i, j+1) - (i, j)
-        total = 0.0
-        for legs in ((along_rows[:, :-1], along_columns[:-1]), (along_rows[:, 1:], along_columns[1:])):
-            squared = np.add(*legs)
-            total += np.sqrt(squared, out=squared).sum()
+        total = sum(_triangle_leg_sum(corners[start : stop + 1], s) for start, stop in row_blocks(corners.shape[0] - 1))
         xs.append((level - k) * np.log(2))
         ys.append(np.log(0.5 * s * total))
     return _fit("triangulation", xs, ys, lambda a: 2 + a)
+
+
+def _triangle_leg_sum(corners, s):
+    """Sum of sqrt(s^2 + a^2 + b^2) over the two triangles of every cell of ``corners`` (grid
+    step s): (i,j)-(i+1,j)-(i,j+1) and (i+1,j+1)-(i+1,j)-(i,j+1), both right-angled in plan,
+    with a, b the height differences along their legs. Times s/2 it is their total area (half
+    the cross product of the legs; Gwyddion evaluates the same area by Heron's formula)."""
+    along_rows = np.square(np.diff(corners, axis=0))  # (i+1, j) - (i, j)
+    along_rows += s * s
+    along_columns = np.square(np.diff(corners, axis=1))  # (i, j+1) - (i, j)
+    total = 0.0
+    for legs in ((along_rows[:, :-1], along_columns[:-1]), (along_rows[:, 1:], along_columns[1:])):
+        squared = np.add(*legs)
+        total += np.sqrt(squared, out=squared).sum()
+    return total
 
 
 def row_power_spectrum(height: HeightMap) -> np.ndarray:
@@ -215,20 +244,27 @@ def row_power_spectrum(height: HeightMap) -> np.ndarray:
     rows, n = z.shape
     index = np.arange(n)
     centred = index - (n - 1) / 2
-    row_slope = (z @ centred)[:, None] / np.dot(centred, centred)  # least-squares line of each row
-    detrended = z - z.mean(axis=1, keepdims=True) - row_slope * centred[None, :]
     window = 0.5 - 0.5 * np.cos(2 * np.pi * (index + 0.5) / n)
-    spectrum = scipy.fft.rfft(detrended * window, axis=1, workers=-1)
-    power = (spectrum.real**2 + spectrum.imag**2) / n
     # RMS of the spectrum without DC, over all N terms (the rfft's mirrored half counted twice)
-    mirrored = np.ones(power.shape[1])
+    mirrored = np.ones(n // 2 + 1)
+    mirrored[0] = 0.0
     mirrored[1 : (n + 1) // 2] = 2.0
-    spectrum_ms = (power[:, 1:] * mirrored[1:]).sum(axis=1) / n
-    original_ms = z.var(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(spectrum_ms > 0, original_ms / spectrum_ms, 1.0)
-    curve = (power[:, : n // 2] * scale[:, None]).sum(axis=0) / (2 * np.pi * rows)
-    return curve[1:]
+    curve = np.zeros(n // 2)
+    for start, stop in row_blocks(rows):  # rows are independent: block by block, in cache
+        block = z[start:stop]
+        row_slope = (block @ centred)[:, None] / np.dot(centred, centred)  # least-squares line of each row
+        detrended = block - block.mean(axis=1, keepdims=True) - row_slope * centred[None, :]
+        detrended *= window
+        spectrum = scipy.fft.rfft(detrended, axis=1)
+        power = np.square(spectrum.real)
+        power += np.square(spectrum.imag)
+        power /= n
+        spectrum_ms = (power @ mirrored) / n
+        original_ms = block.var(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = np.where(spectrum_ms > 0, original_ms / spectrum_ms, 1.0)
+        curve += scale @ power[:, : n // 2]
+    return curve[1:] / (2 * np.pi * rows)
 
 
 def power_spectrum(height: HeightMap, resampled=None, legacy_resampling=False) -> FractalResult:
