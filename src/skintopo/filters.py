@@ -192,8 +192,10 @@ def block_mean(image, factor):
     if factor == 1:
         return np.asarray(image, dtype=float)
     rows, columns = -(-image.shape[0] // factor), -(-image.shape[1] // factor)
-    padded = np.zeros((rows * factor, columns * factor))
-    padded[: image.shape[0], : image.shape[1]] = image
+    padded = np.asarray(image, dtype=float)
+    if padded.shape != (rows * factor, columns * factor):
+        padded = np.zeros((rows * factor, columns * factor))
+        padded[: image.shape[0], : image.shape[1]] = image
     by_rows = padded[::factor].copy()
     for offset in range(1, factor):
         by_rows += padded[offset::factor]

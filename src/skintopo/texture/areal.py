@@ -170,8 +170,9 @@ def _linear_correlation(a, lag_y, lag_x):
     """sum_ij a[i, j] a[i + t_y, j + t_x] for |t_y| <= lag_y, |t_x| <= lag_x (zero lag in the
     middle), by FFT with zero-padding to size + lag. The 2-D transforms are written as their
     two 1-D passes so that no work is spent on what is known or not wanted: the forward row
-    pass skips the padding rows (zeros), the inverse row pass runs only on the row lags
-    asked for (scipy.fft.rfft2/irfft2 would transform every padded row)."""
+    pass skips the padding rows (zeros), the inverse column pass is a real transform, and
+    the inverse row pass runs only on the row lags asked for (scipy.fft.rfft2/irfft2 would
+    transform every padded row, and the power spectrum as complex)."""
     rows, columns = a.shape
     size_y = scipy.fft.next_fast_len(rows + lag_y, real=True)
     size_x = scipy.fft.next_fast_len(columns + lag_x, real=True)
@@ -180,8 +181,11 @@ def _linear_correlation(a, lag_y, lag_x):
     power = spectrum.real**2
     power += spectrum.imag**2
     del spectrum
-    by_row_lag = scipy.fft.ifft(power, axis=0, overwrite_x=True)
-    by_row_lag = np.concatenate([by_row_lag[size_y - lag_y :], by_row_lag[: lag_y + 1]])
+    # Inverse along the columns: the power is real, so G = ifft(power, axis=0) has
+    # G[-t] = conj(G[t]) = rfft(power, axis=0)[t] / size_y: a real transform of half the work.
+    half = scipy.fft.rfft(power, axis=0, n=size_y)[: lag_y + 1]
+    half /= size_y
+    by_row_lag = np.concatenate([half[:0:-1], np.conj(half)])  # row lags -lag_y .. lag_y
     circular = scipy.fft.irfft(by_row_lag, n=size_x, axis=1, overwrite_x=True)
     return np.concatenate([circular[:, size_x - lag_x :], circular[:, : lag_x + 1]], axis=1)
 

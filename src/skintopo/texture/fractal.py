@@ -162,8 +162,8 @@ def partitioning(height: HeightMap, resampled=None) -> FractalResult:
 def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
     """Cube counting, Gwyddion's definition: D = a."""
     z, k = resampled or resample_for_fractal(height)
-    z = z - z.min()
-    h = z.max()
+    bottom = z.min()  # heights are counted from the global minimum
+    h = z.max() - bottom
     if h <= 0:
         raise SkinTopoError("cube counting: the map is flat")
     # Column extremes level by level: the finest columns (2 x 2 samples) from adjacent rows,
@@ -177,6 +177,8 @@ def cube_counting(height: HeightMap, resampled=None) -> FractalResult:
         block = z[start : stop + 1]
         block_low, block_high = np.minimum(block[:-1], block[1:]), np.maximum(block[:-1], block[1:])
         block_low, block_high = np.minimum(block_low[:, :-1], block_low[:, 1:]), np.maximum(block_high[:, :-1], block_high[:, 1:])
+        block_low -= bottom  # min(a, b) - c = min(a - c, b - c) exactly (rounding is monotonic)
+        block_high -= bottom
         counts[k - 1] += _cube_count(block_low, block_high, h, size)
         low[start // 2 : stop // 2], high[start // 2 : stop // 2] = _pool(block_low, np.minimum), _pool(block_high, np.maximum)
     for level in range(k - 2, -1, -1):
@@ -210,24 +212,25 @@ def triangulation(height: HeightMap, resampled=None) -> FractalResult:
     h = z.max() - z.min()
     if h <= 0:
         raise SkinTopoError("triangulation: the map is flat")
-    z = z * (2**k / h)
+    scale = 2**k / h  # heights scaled to the lateral range; applied to the sums instead of the map
     xs, ys = [], []
     for level in range(k + 1):
         s = 2**k // 2**level
         corners = z[::s, ::s]
-        total = sum(_triangle_leg_sum(corners[start : stop + 1], s) for start, stop in row_blocks(corners.shape[0] - 1))
+        total = sum(_triangle_leg_sum(corners[start : stop + 1], s / scale) for start, stop in row_blocks(corners.shape[0] - 1))
         xs.append((level - k) * np.log(2))
-        ys.append(np.log(0.5 * s * total))
+        ys.append(np.log(0.5 * s * scale * total))
     return _fit("triangulation", xs, ys, lambda a: 2 + a)
 
 
-def _triangle_leg_sum(corners, s):
-    """Sum of sqrt(s^2 + a^2 + b^2) over the two triangles of every cell of ``corners`` (grid
-    step s): (i,j)-(i+1,j)-(i,j+1) and (i+1,j+1)-(i+1,j)-(i,j+1), both right-angled in plan,
-    with a, b the height differences along their legs. Times s/2 it is their total area (half
-    the cross product of the legs; Gwyddion evaluates the same area by Heron's formula)."""
+def _triangle_leg_sum(corners, step):
+    """Sum of sqrt(step^2 + a^2 + b^2) over the two triangles of every cell of ``corners``
+    (lateral step ``step``, in the units of the heights): (i,j)-(i+1,j)-(i,j+1) and
+    (i+1,j+1)-(i+1,j)-(i,j+1), both right-angled in plan, with a, b the height differences
+    along their legs. Times step/2 it is their total area (half the cross product of the legs;
+    Gwyddion evaluates the same area by Heron's formula)."""
     along_rows = np.square(np.diff(corners, axis=0))  # (i+1, j) - (i, j)
-    along_rows += s * s
+    along_rows += step * step
     along_columns = np.square(np.diff(corners, axis=1))  # (i, j+1) - (i, j)
     total = 0.0
     for legs in ((along_rows[:, :-1], along_columns[:-1]), (along_rows[:, 1:], along_columns[1:])):
