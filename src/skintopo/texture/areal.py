@@ -125,10 +125,12 @@ def hybrid_parameters(height: HeightMap):
         sums[0] += total(slope_x2 if stop == rows - 1 else slope_x2[:-1])  # the last row is the next block's first
         sums[1] += total(slope_y2)
         # the four corner triangles of each cell: sqrt((dy dzx)^2 + (dx dzy)^2 + (dx dy)^2) is
-        # twice the area of the right triangle spanned by the two edge vectors at that corner
-        slope_x2 *= dy * dy  # horizontal edges: bottom [:-1], top [1:]
-        slope_y2 *= dx * dx  # vertical edges: left [:, :-1], right [:, 1:]
-        slope_y2 += (dx * dy) ** 2
+        # twice the area of the right triangle spanned by the two edge vectors at that corner;
+        # summed as dy sqrt(dzx^2 + (dx/dy)^2 dzy^2 + dx^2), the factor dy applied at the end
+        if dx != dy:
+            slope_y2 *= (dx / dy) ** 2
+        slope_y2 += dx * dx
+        # horizontal edges: bottom [:-1], top [1:]; vertical edges: left [:, :-1], right [:, 1:]
         corners = [(edge_x, edge_y) for edge_x in (slope_x2[:-1], slope_x2[1:]) for edge_y in (slope_y2[:, :-1], slope_y2[:, 1:])]
         cell_sum = np.sqrt(np.add(*corners[0]))
         for edges in corners[1:]:
@@ -139,7 +141,7 @@ def hybrid_parameters(height: HeightMap):
         raise SkinTopoError("Sdq and Sdr need at least 2 x 2 valid points")
     (sum_x2, count_x), (sum_y2, count_y), (area, cells) = sums
     sdq = float(np.sqrt(sum_x2 / count_x / dx**2 + sum_y2 / count_y / dy**2))
-    sdr = float((0.25 * area / (cells * dx * dy) - 1) * 100)
+    sdr = float((0.25 * dy * area / (cells * dx * dy) - 1) * 100)
     return {"Sdq": sdq, "Sdr": sdr}
 
 
@@ -171,8 +173,9 @@ def _linear_correlation(a, lag_y, lag_x):
     middle), by FFT with zero-padding to size + lag. The 2-D transforms are written as their
     two 1-D passes so that no work is spent on what is known or not wanted: the forward row
     pass skips the padding rows (zeros), the inverse column pass is a real transform, and
-    the inverse row pass runs only on the row lags asked for (scipy.fft.rfft2/irfft2 would
-    transform every padded row, and the power spectrum as complex)."""
+    the inverse row pass runs only on the non-negative row lags asked for, the others
+    following by symmetry (scipy.fft.rfft2/irfft2 would transform every padded row, and the
+    power spectrum as complex)."""
     rows, columns = a.shape
     size_y = scipy.fft.next_fast_len(rows + lag_y, real=True)
     size_x = scipy.fft.next_fast_len(columns + lag_x, real=True)
@@ -184,10 +187,13 @@ def _linear_correlation(a, lag_y, lag_x):
     # Inverse along the columns: the power is real, so G = ifft(power, axis=0) has
     # G[-t] = conj(G[t]) = rfft(power, axis=0)[t] / size_y: a real transform of half the work.
     half = scipy.fft.rfft(power, axis=0, n=size_y)[: lag_y + 1]
-    half /= size_y
-    by_row_lag = np.concatenate([half[:0:-1], np.conj(half)])  # row lags -lag_y .. lag_y
-    circular = scipy.fft.irfft(by_row_lag, n=size_x, axis=1, overwrite_x=True)
-    return np.concatenate([circular[:, size_x - lag_x :], circular[:, : lag_x + 1]], axis=1)
+    np.conj(half, out=half)
+    half /= size_y  # row lags 0 .. lag_y
+    circular = scipy.fft.irfft(half, n=size_x, axis=1, overwrite_x=True)
+    upper = np.concatenate([circular[:, size_x - lag_x :], circular[:, : lag_x + 1]], axis=1)
+    # the correlation is point-symmetric, c(-t) = c(t): the negative row lags are the
+    # positive ones turned by 180 degrees
+    return np.concatenate([upper[:0:-1, ::-1], upper])
 
 
 def _centred_lags(circular, lag_y, lag_x):

@@ -257,15 +257,16 @@ def row_power_spectrum(height: HeightMap) -> np.ndarray:
         block = z[start:stop]
         row_slope = (block @ centred)[:, None] / np.dot(centred, centred)  # least-squares line of each row
         detrended = block - block.mean(axis=1, keepdims=True) - row_slope * centred[None, :]
+        # n var(row) = sum of squared residuals + slope^2 sum c^2 (the residuals are orthogonal
+        # to the line), so the original row's mean square comes from the detrended row
+        original_ms = (np.einsum("ij,ij->i", detrended, detrended) + row_slope[:, 0] ** 2 * np.dot(centred, centred)) / n
         detrended *= window
         spectrum = scipy.fft.rfft(detrended, axis=1)
-        power = np.square(spectrum.real)
+        power = np.square(spectrum.real)  # n times the spectrum's power, scaled below
         power += np.square(spectrum.imag)
-        power /= n
-        spectrum_ms = (power @ mirrored) / n
-        original_ms = block.var(axis=1)
+        spectrum_ms = (power @ mirrored) / (n * n)
         with np.errstate(invalid="ignore", divide="ignore"):
-            scale = np.where(spectrum_ms > 0, original_ms / spectrum_ms, 1.0)
+            scale = np.where(spectrum_ms > 0, original_ms / spectrum_ms, 1.0) / n
         curve += scale @ power[:, : n // 2]
     return curve[1:] / (2 * np.pi * rows)
 
