@@ -77,23 +77,20 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     """
     if not height.mask.any():
         raise SkinTopoError("the height map has no valid points")
-    methods = tuple(fractal_methods)
-    on_resampled = tuple(m for m in methods if m in RESAMPLED_METHODS)
-    # The parts are independent and spend their time inside NumPy/SciPy loops that release
-    # the GIL: two workers, longest parts first. BLAS is held to one thread meanwhile:
+    # Two threads for two cores: the fractal estimators and the hybrid parameters in a worker,
+    # the height, spatial and functional parameters here. Both spend their time inside
+    # NumPy/SciPy loops that release the GIL. BLAS is held to one thread meanwhile:
     # OpenBLAS's idle workers spin after each call and would take the other core.
     with _thread_pools().limit(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=1) as pool:
         surface = level(height, level_order) if level_order is not None else height
-        spatial = pool.submit(spatial_parameters, surface)
-        functional = pool.submit(functional_parameters, surface, p=p, q=q)
-        heights = pool.submit(height_parameters, surface)
-        estimates = _fractal_estimates(surface, on_resampled) + _fractal_estimates(surface, tuple(m for m in methods if m not in on_resampled))
-        hybrid = hybrid_parameters(surface)
-        values = heights.result()
-        for part in (hybrid, spatial.result(), functional.result()):
+        fractal = pool.submit(_fractal_estimates, surface, tuple(fractal_methods))
+        hybrid = pool.submit(hybrid_parameters, surface)
+        values = height_parameters(surface)
+        spatial = spatial_parameters(surface)
+        functional = functional_parameters(surface, p=p, q=q)
+        for part in (hybrid.result(), spatial, functional):
             values.update(part)
-        by_method = {result.method: result for result in estimates}
-    estimates = [by_method[method] for method in methods]
+        estimates = fractal.result()
     references = dict(_REFERENCES)
     for name in ("Vmp", "Vmc", "Vvc", "Vvv"):
         references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
