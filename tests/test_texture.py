@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import scipy.ndimage
 import scipy.special
 import scipy.stats
 from gwyddion_oracle import available as gwyddion_available
@@ -14,7 +15,8 @@ from skintopo.cli import main
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.texture import measure_texture, parameters_by_name
-from skintopo.texture.areal import MaterialRatio, functional_parameters, height_parameters, hybrid_parameters
+from skintopo.filters import block_mean
+from skintopo.texture.areal import MaterialRatio, autocorrelation, functional_parameters, height_parameters, hybrid_parameters
 from skintopo.texture.fractal import ESTIMATORS, fractal_dimension, power_spectrum
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
 
@@ -196,6 +198,112 @@ def test_fractal_estimators_match_gwyddion_exactly(method, shape):
     np.testing.assert_allclose(ours.x, x, atol=1e-9)
     np.testing.assert_allclose(ours.y, y, atol=1e-9)
     assert ours.dimension == pytest.approx(d, abs=1e-9)
+
+
+def _reference_fractal_points(z, method):
+    """The definitions of shared/reference/fractal-methods.md written out directly (one
+    level at a time, whole arrays, scipy's bilinear resampling, Heron's formula): an
+    independent check of the blocked, pooled implementation when Gwyddion is absent."""
+    rows, columns = z.shape
+    k = int(round(np.log2(columns)))
+    n = 2**k + 1
+    coords = [((np.arange(n) + 0.5) * size / n - 0.5).clip(0, size - 1) for size in (rows, columns)]
+    z = scipy.ndimage.map_coordinates(z, np.meshgrid(*coords, indexing="ij"), order=1, mode="nearest")
+    size, h = 2**k, z.max() - z.min()
+    xs, ys = [], []
+    if method == "partitioning":
+        for level in range(1, k):
+            r = 2**level
+            c = size // r - 1
+            tiles = z[: c * r, : c * r].reshape(c, r, c, r)
+            xs.append(np.log(r))
+            ys.append(np.log(tiles.var(axis=(1, 3)).mean()))
+    elif method == "cube-counting":
+        shifted = z - z.min()
+        for level in range(k):
+            m = 2 ** (level + 1)
+            s, eps = size // m, h / m
+            count = 0.0
+            for i in range(m):
+                for j in range(m):
+                    column = shifted[i * s : (i + 1) * s + 1, j * s : (j + 1) * s + 1]
+                    count += m - np.floor(column.min() / eps) - np.floor((h - column.max()) / eps)
+            xs.append((level + 1 - k) * np.log(2))
+            ys.append(np.log(count))
+    else:  # triangulation
+        scaled = z * (size / h)
+
+        def heron(p, q, r):
+            a, b, c = np.linalg.norm(q - p, axis=-1), np.linalg.norm(r - q, axis=-1), np.linalg.norm(p - r, axis=-1)
+            half = (a + b + c) / 2
+            return np.sqrt(np.maximum(half * (half - a) * (half - b) * (half - c), 0.0))
+
+        for level in range(k + 1):
+            s = size // 2**level
+            i, j = np.meshgrid(np.arange(0, size, s), np.arange(0, size, s), indexing="ij")
+            point = lambda di, dj: np.stack([(i + di) * 1.0, (j + dj) * 1.0, scaled[i + di, j + dj]], axis=-1)
+            area = heron(point(0, 0), point(s, 0), point(0, s)) + heron(point(s, s), point(s, 0), point(0, s))
+            xs.append((level - k) * np.log(2))
+            ys.append(np.log(area.sum()))
+    return np.array(xs), np.array(ys)
+
+
+@pytest.mark.parametrize("method", ["partitioning", "cube-counting", "triangulation"])
+@pytest.mark.parametrize("shape", [(257, 257), (200, 300), (130, 64)])
+def test_fractal_estimators_follow_the_written_definitions(method, shape):
+    z = fbm(max(shape), 0.5, 1)[: shape[0], : shape[1]]
+    x, y = _reference_fractal_points(z, method)
+    ours = fractal_dimension(HeightMap(z, 1.0), method)
+    np.testing.assert_allclose(ours.x, x, atol=1e-12)
+    np.testing.assert_allclose(ours.y, y, atol=1e-9)
+
+
+def test_autocorrelation_matches_direct_sums_on_a_masked_map():
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=(23, 31))
+    mask = rng.random(z.shape) > 0.15
+    values = np.where(mask, z - z[mask].mean(), 0.0)
+    for max_lag in ((5, 7), None):
+        acf = autocorrelation(HeightMap(z, 1.0, mask), max_lag)
+        lag_y, lag_x = (22, 30) if max_lag is None else max_lag
+        assert acf.shape == (2 * lag_y + 1, 2 * lag_x + 1)
+        for t_y in range(-lag_y, lag_y + 1):
+            for t_x in range(-lag_x, lag_x + 1):
+                a = values[max(0, -t_y) : 23 - max(0, t_y), max(0, -t_x) : 31 - max(0, t_x)]
+                b = values[max(0, t_y) : 23 - max(0, -t_y), max(0, t_x) : 31 - max(0, -t_x)]
+                pairs = (mask[max(0, -t_y) : 23 - max(0, t_y), max(0, -t_x) : 31 - max(0, t_x)]
+                         & mask[max(0, t_y) : 23 - max(0, -t_y), max(0, t_x) : 31 - max(0, -t_x)]).sum()
+                expected = (a * b).sum() / pairs if pairs else np.nan
+                np.testing.assert_allclose(acf[t_y + lag_y, t_x + lag_x], expected, atol=1e-12)
+
+
+def test_hybrid_parameters_on_a_masked_map_match_a_direct_computation():
+    """More rows than one processing block (64), rectangular pixels, holes."""
+    rng = np.random.default_rng(6)
+    z = rng.normal(size=(150, 40))
+    mask = rng.random(z.shape) > 0.05
+    dy, dx = 2.0, 1.5
+    ours = hybrid_parameters(HeightMap(z, (dy, dx), mask))
+    w = np.where(mask, z, np.nan)
+    gx, gy = np.diff(w, axis=1) / dx, np.diff(w, axis=0) / dy
+    assert ours["Sdq"] == pytest.approx(np.sqrt(np.nanmean(gx**2) + np.nanmean(gy**2)), rel=1e-12)
+    # each cell: the mean of its four corner triangles, 1/2 |edge_x x edge_y| (ISO 25178-2 D.15)
+    ex = [np.stack([np.full_like(g, dx), np.zeros_like(g), g * dx], -1) for g in (gx[:-1], gx[1:])]
+    ey = [np.stack([np.zeros_like(g), np.full_like(g, dy), g * dy], -1) for g in (gy[:, :-1], gy[:, 1:])]
+    cells = sum(0.5 * np.linalg.norm(np.cross(a, b), axis=-1) for a in ex for b in ey) / 2  # two triangulations averaged
+    valid = np.isfinite(cells)
+    assert ours["Sdr"] == pytest.approx((cells[valid].sum() / (valid.sum() * dx * dy) - 1) * 100, rel=1e-12)
+
+
+def test_block_mean_against_a_padded_reshape():
+    rng = np.random.default_rng(7)
+    for shape, factor in (((64, 48), 4), ((67, 45), 4), ((10, 9), 3), ((5, 5), 1)):
+        image = rng.normal(size=shape)
+        rows, columns = -(-shape[0] // factor), -(-shape[1] // factor)
+        padded = np.zeros((rows * factor, columns * factor))
+        padded[: shape[0], : shape[1]] = image
+        expected = padded.reshape(rows, factor, columns, factor).mean(axis=(1, 3))
+        np.testing.assert_allclose(block_mean(image, factor), expected, rtol=1e-14, atol=1e-15)
 
 
 @pytest.mark.slow
