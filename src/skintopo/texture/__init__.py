@@ -74,6 +74,11 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
     Returns
     -------
     list of Parameter
+
+    Notes
+    -----
+    Runs on two threads (the calling one and one worker) and holds BLAS to one thread while
+    it runs; the numbers do not depend on the threading.
     """
     if not height.mask.any():
         raise SkinTopoError("the height map has no valid points")
