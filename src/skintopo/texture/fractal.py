@@ -247,6 +247,7 @@ def row_power_spectrum(height: HeightMap) -> np.ndarray:
     rows, n = z.shape
     index = np.arange(n)
     centred = index - (n - 1) / 2
+    centred_squares = np.dot(centred, centred)
     window = 0.5 - 0.5 * np.cos(2 * np.pi * (index + 0.5) / n)
     # RMS of the spectrum without DC, over all N terms (the rfft's mirrored half counted twice)
     mirrored = np.ones(n // 2 + 1)
@@ -255,11 +256,11 @@ def row_power_spectrum(height: HeightMap) -> np.ndarray:
     curve = np.zeros(n // 2)
     for start, stop in row_blocks(rows):  # rows are independent: block by block, in cache
         block = z[start:stop]
-        row_slope = (block @ centred)[:, None] / np.dot(centred, centred)  # least-squares line of each row
+        row_slope = (block @ centred)[:, None] / centred_squares  # least-squares line of each row
         detrended = block - block.mean(axis=1, keepdims=True) - row_slope * centred[None, :]
         # n var(row) = sum of squared residuals + slope^2 sum c^2 (the residuals are orthogonal
         # to the line), so the original row's mean square comes from the detrended row
-        original_ms = (np.einsum("ij,ij->i", detrended, detrended) + row_slope[:, 0] ** 2 * np.dot(centred, centred)) / n
+        original_ms = (np.einsum("ij,ij->i", detrended, detrended) + row_slope[:, 0] ** 2 * centred_squares) / n
         detrended *= window
         spectrum = scipy.fft.rfft(detrended, axis=1)
         power = np.square(spectrum.real)  # n times the spectrum's power, scaled below
