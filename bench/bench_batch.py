@@ -3,11 +3,11 @@ local workers. Target (issue 9): 2 workers at least 1.6x the 1-worker figure.
 Results: bench/results/batch.json.
 """
 
-import json
-import platform
 import tempfile
 import time
 from pathlib import Path
+
+from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.batch import run_study
 from skintopo.synth import Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
@@ -35,9 +35,7 @@ def main():
             result[f"acquisitions_per_minute_{workers}_worker"] = round(60 * COUNT / seconds, 2)
         result["speedup"] = round(result["acquisitions_per_minute_2_worker"] / result["acquisitions_per_minute_1_worker"], 2)
         result["target_speedup"] = 1.6
-    result["machine"] = f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"
-    (Path(__file__).parent / "results" / "batch.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    write_result("batch", result)
 
 
 if __name__ == "__main__":

@@ -3,11 +3,11 @@ included. Target (issue 8): under 10 s on 2 cores. The acquisition is simulated 
 timed; interreflection off to keep the set-up short). Results: bench/results/measure.json.
 """
 
-import json
-import platform
 import tempfile
 import time
 from pathlib import Path
+
+from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.cli import main
 from skintopo.synth import Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
@@ -25,10 +25,8 @@ def main_bench():
         seconds = time.perf_counter() - start
         size = (folder / "out" / "report.html").stat().st_size
     result = {"benchmark": "skintopo measure, 1000x1000 acquisition, 16 images (4 lights x red/green/blue/white), report included",
-              "seconds": round(seconds, 2), "target_seconds": 10, "report_bytes": size,
-              "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"}
-    (Path(__file__).parent / "results" / "measure.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+              "seconds": round(seconds, 2), "target_seconds": 10, "report_bytes": size}
+    write_result("measure", result)
 
 
 if __name__ == "__main__":

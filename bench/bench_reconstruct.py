@@ -5,13 +5,11 @@ under 1 GiB. Reproducible: fixed seed; run `python bench/bench_reconstruct.py`.
 Results are written to bench/results/reconstruct.json.
 """
 
-import json
-import platform
 import time
 import tracemalloc
-from pathlib import Path
 
 import numpy as np
+from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.height import dct_poisson, normals_to_gradients
 from skintopo.normals import photometric_stereo, render_lambertian
@@ -73,11 +71,8 @@ def main():
         "peak_memory_note": "tracemalloc peak of NumPy allocations during the run, input images excluded",
         "target_peak_memory_mib": 1024,
         "repeats": REPEATS,
-        "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}",
     }
-    out = Path(__file__).parent / "results" / "reconstruct.json"
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    write_result("reconstruct", result)
 
 
 if __name__ == "__main__":

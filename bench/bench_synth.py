@@ -4,10 +4,9 @@ Targets (issue 3): 512 x 512 under 30 s, 1024 x 1024 under 2 minutes on 2 cores.
 Results: bench/results/synth.json.
 """
 
-import json
-import platform
 import time
-from pathlib import Path
+
+from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
 
@@ -30,9 +29,8 @@ def main():
             "max_radiosity_iterations": max(info["iterations"].values()),
         })
         print(rows[-1])
-    result = {"benchmark": "simulate_acquisition, forehead-moderate, all effects, 20 um pixels", "runs": rows,
-              "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"}
-    (Path(__file__).parent / "results" / "synth.json").write_text(json.dumps(result, indent=2) + "\n")
+    result = {"benchmark": "simulate_acquisition, forehead-moderate, all effects, 20 um pixels", "runs": rows}
+    write_result("synth", result)
 
 
 if __name__ == "__main__":

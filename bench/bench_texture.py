@@ -7,12 +7,10 @@ Target (issue 5): at least 10x faster than surfalize. surfalize is GPL: it is on
 here and in the tests, never by the package. Results: bench/results/texture.json.
 """
 
-import json
-import platform
 import time
-from pathlib import Path
 
 import numpy as np
+from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.heightmap import HeightMap
 from skintopo.texture import measure_texture
@@ -60,9 +58,7 @@ def main():
         result["speedup"] = round(min(times) / min(ours), 1)
         result["speedup_of_medians"] = round(float(np.median(times) / np.median(ours)), 1)
         result["target_speedup"] = 10
-    result["machine"] = f"{platform.machine()}, {__import__('os').cpu_count()} cores, Python {platform.python_version()}"
-    (Path(__file__).parent / "results" / "texture.json").write_text(json.dumps(result, indent=2) + "\n")
-    print(json.dumps(result, indent=2))
+    write_result("texture", result)
 
 
 if __name__ == "__main__":
