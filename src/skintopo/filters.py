@@ -16,6 +16,14 @@ Areal Gaussian filter (ISO 16610-61)
     masked region it does not lean toward the missing side, and any plane passes unchanged
     everywhere. Where too few valid points carry weight to fix a plane, the zeroth-order
     (normalised) mean is used.
+
+Morphological closing with a line segment (ISO 16610-41 / -81 closing filter, flat
+structuring element)
+    C(z) = erosion(dilation(z)), dilation = max and erosion = min of z over the segment
+    centred on each point. It is the upper envelope traced by the segment held level: it
+    fills every valley narrower than the segment along its direction and leaves all else
+    unchanged. With a segment laid along a wrinkle, the microrelief furrows that cross the
+    wrinkle are filled while the wrinkle (long in that direction) keeps its depth.
 """
 
 from __future__ import annotations
@@ -203,6 +211,40 @@ def block_mean(image, factor):
     for offset in range(1, factor):
         total += by_rows[:, offset::factor]
     return total / (factor * factor)
+
+
+def line_segment_footprint(length_um, angle_deg, spacing):
+    """Digital line segment (boolean footprint, centrally symmetric) of physical length
+    ``length_um`` at ``angle_deg`` counter-clockwise from +x (x right, y up; rows run down)."""
+    dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
+    theta = np.radians(angle_deg)
+    half_columns = 0.5 * length_um * np.cos(theta) / dx
+    half_rows = -0.5 * length_um * np.sin(theta) / dy
+    # One pixel per step along the dominant axis, the other coordinate rounded: symmetric
+    # about the centre, since rint(-v) = -rint(v).
+    major = max(abs(half_columns), abs(half_rows))
+    steps = np.arange(-int(round(major)), int(round(major)) + 1)
+    fraction = steps / major if major > 0 else np.zeros(1)
+    rows, columns = np.rint(fraction * half_rows).astype(int), np.rint(fraction * half_columns).astype(int)
+    reach_rows, reach_columns = int(np.abs(rows).max()), int(np.abs(columns).max())
+    footprint = np.zeros((2 * reach_rows + 1, 2 * reach_columns + 1), dtype=bool)
+    footprint[rows + reach_rows, columns + reach_columns] = True
+    return footprint
+
+
+def line_segment_closing(z, spacing, length_um, angle_deg, mask=None):
+    """Closing filter with a level line segment (see the module notes): fills valleys
+    narrower than ``length_um`` along ``angle_deg``.
+
+    Masked points take no part: they are left out of the maximum and of the minimum (a
+    point whose whole segment is masked stays as it was). Returns a new array.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
+    footprint = line_segment_footprint(length_um, angle_deg, spacing)
+    dilated = scipy.ndimage.grey_dilation(np.where(valid, z, -np.inf), footprint=footprint, mode="constant", cval=-np.inf)
+    closed = scipy.ndimage.grey_erosion(np.where(valid, dilated, np.inf), footprint=footprint, mode="constant", cval=np.inf)
+    return np.where(valid & np.isfinite(closed), closed, z)
 
 
 def level(height: HeightMap, order=1):

@@ -1,31 +1,50 @@
 """Per-wrinkle measures from a height map and its wrinkle segmentation.
 
-All measures are taken on the scale-limited surface: the height is first S-filtered with the
-ISO Gaussian at ``short_cutoff_um`` (default 0.25 mm), which removes the microrelief's
-finest furrows, as ISO 25178 measures are always taken on an S-filtered surface.
+Depth is measured from the skin's surface, the plateaus of the microrelief, not from its
+mean level: skin is plateaus cut by furrows (20-200 um deep, about 0.1 mm wide), and where a
+furrow crosses a wrinkle's floor it deepens it locally; the mean level of the skin around
+a wrinkle sits below the plateaus by an amount that varies with the furrows' local depth.
+Both made depths of shallow wrinkles (50 um among 20-60 um furrows) scatter by +-15-25%.
+The furrows are therefore removed first, with the closing filter (ISO 16610-41/-81: the
+upper envelope of a level line segment, :func:`~skintopo.filters.line_segment_closing`):
 
-Local surrounding skin level: the S-filtered height is low-passed at ``reference_cutoff_um``
-(default 2.5 mm) with the wrinkles (their full extent, widened by ``margin_um``) masked out;
-the first-order Gaussian regression fills them from the skin around them. The wrinkle depth
-is d = reference - height, positive in the wrinkle.
+* around the wrinkles: the largest of four closings with a ``furrow_closing_um`` (0.2 mm)
+  segment at 0, 45, 90 and 135 degrees, which fills every furrow narrower than the segment
+  along some direction (each furrow crosses one of the four at 45 degrees or more);
+* on each wrinkle (its extent widened by ``margin_um``): a closing
+  with an ``along_closing_um`` (0.5 mm) segment laid along the centre line's local direction
+  (in 1-degree steps), which bridges the furrows crossing the wrinkle and leaves the wrinkle,
+  long in that direction, as it is.
+
+The least-squares quadratic form is removed before (so the reference's regression, which
+passes planes, does not lift a curved forehead's level), and all measures are then taken on
+the scale-limited surface: the furrow-free height is
+S-filtered with the ISO Gaussian at ``short_cutoff_um`` (default 0.25 mm), as ISO 25178
+measures are always taken on an S-filtered surface.
+
+Local surrounding skin level: the S-filtered furrow-free height is low-passed at
+``reference_cutoff_um`` (default 2.5 mm) with the wrinkles (their full extent, widened by
+``margin_um``) masked out; the first-order Gaussian regression fills them from the skin
+around them. The wrinkle depth is d = reference - height, positive in the wrinkle.
 
 For each wrinkle (ids 1..n ordered by the centroid, top to bottom then left to right, so the
 same map always gives the same ids):
 
-* centre line: skeleton of the wrinkle's half-depth region; ``length_mm`` is the skeleton's
-  length (8-connected steps of 1 or sqrt(2) pixels) extended by the mean width (half a width
-  at each end, where the skeleton stops short of the region's ends);
+* centre line: the longest path through the skeleton of the wrinkle's half-depth region
+  (per piece, if the region is broken; side branches of the skeleton are not length);
+  ``length_mm`` is its length (8-connected steps of 1 or sqrt(2) pixels) extended by the
+  mean width (half a width at each end, where the skeleton stops short of the region's ends);
 * ``orientation_deg``: of the region's major axis, counter-clockwise from +x (y up), in
   [0, 180);
 * ``max_depth_um``: the median of d over the deepest part of the centre line (where d is at
-  least 0.6 x its 95th percentile): the depth of the wrinkle's floor, robust to furrows
-  crossing it; ``mean_depth_um``: mean of d along the centre line;
+  least 0.6 x its 95th percentile): the depth of the wrinkle's floor;
+  ``mean_depth_um``: mean of d along the centre line;
 * ``mean_width_mm`` at half depth: area where d >= 0.5 x the local centre-line depth (a
   Gaussian average of the centre line's depths, about one width wide), within one core width
-  of the centre line (a furrow branching off is not width), divided by the length;
+  of the centre line, divided by the length;
 * ``volume_mm3``: integral of the signed d over the half-depth region widened by one width
-  plus ``margin_um`` (other wrinkles left out); signed because the microrelief has zero mean
-  about the reference level, so clipping d at zero would add the surrounding furrows' volume;
+  plus ``margin_um`` (other wrinkles left out); signed, because what is left of the skin's
+  relief after the closing has zero mean about the reference level;
   ``cross_section_mm2`` = volume / length;
 * ``severity`` = mean depth (um) x length (mm) / 100: a depth-length index that grows with
   either; a ranking aid within a study, not a clinical grading scale.
@@ -40,17 +59,22 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import scipy.ndimage
+from skimage.graph import MCP_Geometric
 from skimage.measure import label, regionprops
 from skimage.morphology import skeletonize
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter
+from skintopo.filters import areal_gaussian_filter, line_segment_closing, line_segment_footprint, polynomial_form
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import WrinkleSegmentation
 
 DEFAULT_SHORT_CUTOFF_UM = 250.0
 DEFAULT_REFERENCE_CUTOFF_UM = 2500.0
 DEFAULT_MARGIN_UM = 150.0
+DEFAULT_FURROW_CLOSING_UM = 200.0
+DEFAULT_ALONG_CLOSING_UM = 500.0
+PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
+ANGLE_STEP_DEG = 1.0
 MAX_DEPTH_PERCENTILE = 95
 
 
@@ -85,89 +109,173 @@ class WrinkleMeasures:
         return {"wrinkles": [asdict(w) for w in self.wrinkles], "totals": self.totals}
 
 
-def _skeleton_length(skeleton, spacing):
-    """Length of an 8-connected skeleton: axis steps of dx or dy, diagonal steps of their
-    hypotenuse, a diagonal step not counted where two axis steps already join its pixels."""
+def plateau_surface(height: HeightMap, furrow_closing_um=DEFAULT_FURROW_CLOSING_UM):
+    """The skin without its furrows: the largest of the closings with a level segment of
+    ``furrow_closing_um`` at 0, 45, 90 and 135 degrees (see the module notes). Fills the
+    wrinkles too where they are narrower than the segment; use it away from them."""
+    closings = [line_segment_closing(height.z, height.spacing, furrow_closing_um, angle, height.mask)
+                for angle in PLATEAU_DIRECTIONS_DEG]
+    return np.max(closings, axis=0)
+
+
+def centre_lines(skeleton, spacing, smoothing_um):
+    """The longest path through each piece of a skeleton, with its local direction.
+
+    The longest path is found by two sweeps of a minimum-cost path search over the skeleton
+    (scikit-image ``MCP_Geometric``, steps of dx, dy or the diagonal): the point farthest
+    from any start, then the point farthest from that one; exact when the piece has no
+    loops, as skeletons of wrinkles have not. Returns a list of (pixels (n, 2) as row,
+    column, in order along the path; direction in degrees counter-clockwise from +x, y up,
+    in [0, 180), from the path smoothed over ``smoothing_um``).
+    """
     dy, dx = spacing
-    s = np.asarray(skeleton, dtype=bool)
-    horizontal = s[:, :-1] & s[:, 1:]
-    vertical = s[:-1, :] & s[1:, :]
-    down_right = s[:-1, :-1] & s[1:, 1:] & ~s[:-1, 1:] & ~s[1:, :-1]
-    down_left = s[:-1, 1:] & s[1:, :-1] & ~s[:-1, :-1] & ~s[1:, 1:]
-    diagonal = np.hypot(dx, dy)
-    return float(dx * horizontal.sum() + dy * vertical.sum() + diagonal * (down_right.sum() + down_left.sum()))
+    pieces = label(skeleton, connectivity=2)
+    cost = np.where(skeleton, 1.0, np.inf)
+    lines = []
+    for piece in range(1, pieces.max() + 1):
+        start = tuple(np.argwhere(pieces == piece)[0])
+        far = _farthest(cost, start, spacing)[0]
+        end, search = _farthest(cost, far, spacing)
+        path = np.array(search.traceback(end))
+        sigma = max(1.0, smoothing_um / min(dy, dx) / 2)
+        smooth = scipy.ndimage.gaussian_filter1d(path.astype(float), sigma, axis=0, mode="nearest")
+        step = np.gradient(smooth, axis=0) if len(path) > 1 else np.array([[0.0, 1.0]])
+        direction = np.degrees(np.arctan2(-step[:, 0] * dy, step[:, 1] * dx)) % 180.0
+        lines.append((path, direction))
+    return lines
 
 
-def wrinkle_depth_map(height: HeightMap, extent, *, short_cutoff_um=DEFAULT_SHORT_CUTOFF_UM,
-                      reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM):
-    """d = local surrounding skin level - S-filtered height (um), see the module notes."""
-    smooth = areal_gaussian_filter(height.z, height.spacing, short_cutoff_um, height.mask) if short_cutoff_um else height.z
-    margin_px = max(1, int(round(margin_um / min(height.spacing))))
-    widened = scipy.ndimage.binary_dilation(np.asarray(extent, bool), iterations=margin_px)
-    around = height.mask & ~widened
-    if around.sum() < 0.05 * height.mask.sum():
-        raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
-    reference = areal_gaussian_filter(smooth, height.spacing, reference_cutoff_um, around)
-    return np.where(height.mask, reference - smooth, np.nan)
+def _farthest(cost, start, spacing):
+    """The skeleton point farthest (along the skeleton) from ``start``, and the search."""
+    search = MCP_Geometric(cost, fully_connected=True, sampling=spacing)
+    distance = search.find_costs([start])[0]
+    distance[~np.isfinite(distance)] = -1.0
+    farthest = np.unravel_index(distance.argmax(), distance.shape)
+    return farthest, search
+
+
+def _path_length(path, spacing):
+    """Length (um) of an 8-connected pixel path: steps of dy, dx or their hypotenuse."""
+    steps = np.diff(path, axis=0) * np.asarray(spacing)
+    return float(np.hypot(steps[:, 0], steps[:, 1]).sum())
+
+
+def _closed_along(z, mask, spacing, direction, region, length_um):
+    """Heights of ``region`` after the closing along each point's ``direction`` image (in
+    ANGLE_STEP_DEG steps); the closing of each step runs on the bounding box of its points
+    plus the segment's double reach (erosion after dilation), not on the whole window."""
+    out = np.array(z, dtype=np.float64)
+    steps = np.rint(direction / ANGLE_STEP_DEG).astype(int) % int(round(180 / ANGLE_STEP_DEG))
+    for step in np.unique(steps[region]):
+        angle = step * ANGLE_STEP_DEG
+        reach = 2 * (np.array(line_segment_footprint(length_um, angle, spacing).shape) // 2)
+        rows, columns = np.nonzero(region & (steps == step))
+        box = (slice(max(0, rows.min() - reach[0]), rows.max() + reach[0] + 1),
+               slice(max(0, columns.min() - reach[1]), columns.max() + reach[1] + 1))
+        closed = line_segment_closing(z[box], spacing, length_um, angle, mask[box])
+        pick = region[box] & (steps[box] == step)
+        out[box][pick] = closed[pick]
+    return out
 
 
 def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, short_cutoff_um=DEFAULT_SHORT_CUTOFF_UM,
-                     reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM, depth_fraction=0.5) -> WrinkleMeasures:
+                     reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM, depth_fraction=0.5,
+                     furrow_closing_um=DEFAULT_FURROW_CLOSING_UM, along_closing_um=DEFAULT_ALONG_CLOSING_UM) -> WrinkleMeasures:
     """Per-wrinkle measures and field totals (see the module notes)."""
     if segmentation.labels.shape != height.shape:
         raise SkinTopoError(f"segmentation shape {segmentation.labels.shape} differs from the height map {height.shape}")
     dy, dx = height.spacing
     pixel_area_mm2 = dx * dy * 1e-6
-    extent_labels = label(segmentation.extent)
     if segmentation.count == 0:
         depth = np.full(height.shape, np.nan)
         return WrinkleMeasures([], _totals([], height, 0), np.zeros(height.shape, np.int32), depth, np.zeros(height.shape, bool))
-    depth = wrinkle_depth_map(height, segmentation.extent, short_cutoff_um=short_cutoff_um,
-                              reference_cutoff_um=reference_cutoff_um, margin_um=margin_um)
-    filled = np.nan_to_num(depth, nan=0.0)
+
+    def s_filtered(z, mask):
+        return areal_gaussian_filter(z, height.spacing, short_cutoff_um, mask) if short_cutoff_um else z
+
     margin_px = max(1, int(round(margin_um / min(height.spacing))))
     extent_any = np.asarray(segmentation.extent, bool)
+    around = height.mask & ~scipy.ndimage.binary_dilation(extent_any, iterations=margin_px)
+    if around.sum() < 0.05 * height.mask.sum():
+        raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
+    # The least-squares quadratic form of the skin around the wrinkles is removed first: the
+    # reference's Gaussian regression passes planes but lifts a curved forehead's level by
+    # sigma^2 / (2 R) (1.4 um at 2.5 mm and R = 80 mm), which summed over a wrinkle's walls
+    # is 10-15% of a shallow one's volume.
+    height = HeightMap(height.z - polynomial_form(height.z, height.spacing, 2, around), height.spacing, height.mask)
+    # Local surrounding skin level, from the furrow-free skin outside the widened wrinkles.
+    plateau = plateau_surface(height, furrow_closing_um)
+    smooth = s_filtered(plateau, height.mask)
+    reference = areal_gaussian_filter(smooth, height.spacing, reference_cutoff_um, around)
+    depth = np.where(height.mask, reference - smooth, np.nan)
+
+    extent_labels = label(extent_any)
     order = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
     wrinkles, ids, lines = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool)
     half_area_total = 0
     for new_id, region in enumerate(order, start=1):
         whole_full = extent_labels == np.bincount(extent_labels[segmentation.labels == region.label]).argmax()
-        # Work in a window around the wrinkle (its extent plus the smoothing and margin reach).
+        # Work in a window around the wrinkle (its extent plus the smoothing, closing and margin reach).
         sigma = max(1.0, region.axis_minor_length)
-        pad = int(3 * sigma + margin_px + 2)
+        pad = int(3 * sigma + margin_px + along_closing_um / min(dy, dx) + 2)
         rows_any, columns_any = np.nonzero(whole_full)
         window = (slice(max(0, rows_any.min() - pad), rows_any.max() + pad + 1), slice(max(0, columns_any.min() - pad), columns_any.max() + pad + 1))
         core = segmentation.labels[window] == region.label
         whole = whole_full[window]
-        depth_window = filled[window]
-        skeleton = skeletonize(core)
-        line_depth = depth_window[skeleton]
-        if line_depth.size == 0:
-            continue
-        # Maximum depth: the median of the deepest part of the centre line (d >= 0.6 x its
-        # 95th percentile), robust to furrows crossing the wrinkle's bottom.
-        deepest = line_depth[line_depth >= 0.6 * np.percentile(line_depth, MAX_DEPTH_PERCENTILE)]
+        pieces = centre_lines(skeletonize(core), height.spacing, along_closing_um)
+        skeleton_paths = np.zeros(core.shape, bool)
+        direction_on_paths = np.zeros(core.shape)
+        for path, direction in pieces:
+            skeleton_paths[path[:, 0], path[:, 1]] = True
+            direction_on_paths[path[:, 0], path[:, 1]] = direction
+        nearest = scipy.ndimage.distance_transform_edt(~skeleton_paths, return_distances=False, return_indices=True)
+        # On the wrinkle (its extent widened by the margin), furrows are closed along the centre
+        # line's local direction instead: the four-way closing would fill the wrinkle's floor.
+        near = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & height.mask[window]
+        closed = _closed_along(height.z[window], height.mask[window], height.spacing,
+                               direction_on_paths[nearest[0], nearest[1]], near, along_closing_um)
+        closed[~near] = plateau[window][~near]
+        depth_window = np.nan_to_num(np.where(height.mask[window], reference[window] - s_filtered(closed, height.mask[window]), np.nan))
+        depth[window][near] = depth_window[near]
+        # Maximum depth: the median of the deepest part of the paths (d >= 0.6 x its 95th
+        # percentile), robust to what the closing left of the furrows.
+        path_depth = depth_window[skeleton_paths]
+        max_depth = float(np.median(path_depth[path_depth >= 0.6 * np.percentile(path_depth, MAX_DEPTH_PERCENTILE)]))
+        # The centre line is where the paths are at least half as deep as the wrinkle: their
+        # ends are trimmed to the first and last such point, which cuts a furrow that continues
+        # the wrinkle's line, and drops a piece that is no part of the wrinkle's floor. An end
+        # the skeleton left short of the region's end (not trimmed) is extended by half a width.
+        line = np.zeros(core.shape, bool)
+        line_length, open_ends = 0.0, 0
+        for path, _ in pieces:
+            deep = np.flatnonzero(depth_window[path[:, 0], path[:, 1]] >= depth_fraction * max_depth)
+            if deep.size == 0:
+                continue
+            kept = path[deep[0]:deep[-1] + 1]
+            line[kept[:, 0], kept[:, 1]] = True
+            line_length += _path_length(kept, height.spacing)
+            open_ends += int(deep[0] == 0) + int(deep[-1] == len(path) - 1)
+        core_pieces = label(core)
+        core &= np.isin(core_pieces, np.unique(core_pieces[line]))
+        distance = scipy.ndimage.distance_transform_edt(~line, sampling=(dy, dx))
+        core_width = np.count_nonzero(core) * dx * dy / max(line_length, dx)
+        line_depth = depth_window[line]
         # Local centre-line depth spread across the wrinkle: a normalised Gaussian average of
-        # the centre line's depths (sigma about one wrinkle width), so microrelief noise on the
-        # centre line does not raise the half-depth threshold as a maximum would.
-        weight = scipy.ndimage.gaussian_filter(skeleton.astype(float), sigma)
+        # the centre line's depths (sigma about one wrinkle width), so noise on the centre
+        # line does not raise the half-depth threshold as a maximum would.
+        weight = scipy.ndimage.gaussian_filter(line.astype(float), sigma)
         with np.errstate(invalid="ignore", divide="ignore"):
-            local = scipy.ndimage.gaussian_filter(np.where(skeleton, depth_window, 0.0), sigma) / weight
+            local = scipy.ndimage.gaussian_filter(np.where(line, depth_window, 0.0), sigma) / weight
         # The half-depth region stays within one core width of the centre line, so a furrow
         # branching off the wrinkle (as deep as half the wrinkle) is not counted as its width.
-        skeleton_length = _skeleton_length(skeleton, height.spacing)
-        distance = scipy.ndimage.distance_transform_edt(~skeleton, sampling=(dy, dx))
-        core_width = np.count_nonzero(core) * dx * dy / max(skeleton_length, dx)
-        near = distance <= max(core_width, 2 * max(dx, dy))
-        half = whole & near & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
+        within = distance <= max(core_width, 2 * max(dx, dy))
+        half = whole & within & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
         half_area = np.count_nonzero(half) * dx * dy
-        width = half_area / max(skeleton_length, dx)
-        length = skeleton_length + width
+        width = half_area / max(line_length, dx)
+        length = line_length + open_ends * width / 2
         width = half_area / length
         # Volume: the signed depth integrated over the wrinkle and its walls (within one width
-        # plus the margin of the half-depth region), other wrinkles left out. Signed, because the
-        # skin's microrelief has zero mean about the reference level: clipping d at zero
-        # would add the furrows' volume around the wrinkle.
+        # plus the margin of the half-depth region), other wrinkles left out.
         reach = width + margin_um
         walls = (scipy.ndimage.distance_transform_edt(~half, sampling=(dy, dx)) <= reach) & ~(extent_any[window] & ~whole)
         volume = depth_window[walls].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
@@ -177,11 +285,11 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         wrinkles.append(Wrinkle(
             id=new_id, centroid_x_mm=column * dx / 1000, centroid_y_mm=row * dy / 1000, length_mm=length / 1000,
             orientation_deg=float(orientation), mean_depth_um=mean_depth,
-            max_depth_um=float(np.median(deepest)), mean_width_mm=width / 1000,
+            max_depth_um=max_depth, mean_width_mm=width / 1000,
             cross_section_mm2=volume / (length / 1000), volume_mm3=volume, severity=mean_depth * (length / 1000) / 100,
         ))
         ids[window][core] = new_id
-        lines[window] |= skeleton
+        lines[window] |= line
         half_area_total += np.count_nonzero(half)
     return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, depth, lines)
 
