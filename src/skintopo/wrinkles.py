@@ -154,6 +154,30 @@ def _farthest(cost, start, spacing):
     return farthest, search
 
 
+def _joined_length(paths, spacing):
+    """Length (um) of a wrinkle's centre-line pieces, ordered along their principal axis:
+    their lengths plus the straight gaps between consecutive pieces; and how many of the two
+    outer ends are open (the skeleton stopped there, not trimmed).
+    ``paths``: (kept pixels, start open, end open) for each piece."""
+    scale = np.asarray(spacing, float)
+    points = np.concatenate([kept for kept, *_ in paths]) * scale
+    axis = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2][0]
+    ends = []
+    for kept, start_open, end_open in paths:
+        first, last = kept[0], kept[-1]
+        start, end = (first, start_open), (last, end_open)
+        if (last * scale) @ axis < (first * scale) @ axis:
+            start, end = end, start
+        ends.append((start, end, _path_length(kept, spacing)))
+    ends.sort(key=lambda e: (e[0][0] * scale) @ axis)
+    length = sum(piece_length for *_, piece_length in ends)
+    for (_, previous_end, _), (next_start, _, _) in zip(ends[:-1], ends[1:]):
+        if (next_start[0] * scale) @ axis > (previous_end[0] * scale) @ axis:
+            length += float(np.hypot(*((next_start[0] - previous_end[0]) * scale)))
+    outer = (ends[0][0], max((e[1] for e in ends), key=lambda p: (p[0] * scale) @ axis))
+    return length, sum(is_open for _, is_open in outer)
+
+
 def _path_length(path, spacing):
     """Length (um) of an 8-connected pixel path: steps of dy, dx or their hypotenuse."""
     steps = np.diff(path, axis=0) * np.asarray(spacing)
@@ -231,30 +255,39 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         nearest = scipy.ndimage.distance_transform_edt(~skeleton_paths, return_distances=False, return_indices=True)
         # On the wrinkle (its extent widened by the margin), furrows are closed along the centre
         # line's local direction instead: the four-way closing would fill the wrinkle's floor.
+        # That closing leaves the furrows that run along the wrinkle, which the four-way one
+        # fills: their mean depth, measured with the same closing on the skin around the
+        # wrinkle (in the window), is added back, so both closings share one level.
         near = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & height.mask[window]
+        ring = around[window]
         closed = _closed_along(height.z[window], height.mask[window], height.spacing,
-                               direction_on_paths[nearest[0], nearest[1]], near, along_closing_um)
-        closed[~near] = plateau[window][~near]
+                               direction_on_paths[nearest[0], nearest[1]], near | ring, along_closing_um)
+        left_by_along = float(np.mean(plateau[window][ring] - closed[ring])) if ring.any() else 0.0
+        closed = np.where(near, closed + left_by_along, plateau[window])
         depth_window = np.nan_to_num(np.where(height.mask[window], reference[window] - s_filtered(closed, height.mask[window]), np.nan))
         depth[window][near] = depth_window[near]
         # Maximum depth: the median of the deepest part of the paths (d >= 0.6 x its 95th
         # percentile), robust to what the closing left of the furrows.
         path_depth = depth_window[skeleton_paths]
         max_depth = float(np.median(path_depth[path_depth >= 0.6 * np.percentile(path_depth, MAX_DEPTH_PERCENTILE)]))
-        # The centre line is where the paths are at least half as deep as the wrinkle: their
-        # ends are trimmed to the first and last such point, which cuts a furrow that continues
-        # the wrinkle's line, and drops a piece that is no part of the wrinkle's floor. An end
-        # the skeleton left short of the region's end (not trimmed) is extended by half a width.
-        line = np.zeros(core.shape, bool)
-        line_length, open_ends = 0.0, 0
+        # The centre line is where the paths are at least half as deep as the wrinkle (the
+        # length at half depth): their ends are trimmed to the first and last such point,
+        # which cuts a furrow that continues the wrinkle's line and drops a piece that is no
+        # part of the wrinkle's floor. The length is the pieces' lengths plus the gaps between
+        # them, plus half a width at each of the wrinkle's two ends where the skeleton stopped
+        # short of the region's end (not trimmed).
+        threshold = depth_fraction * max_depth
+        kept_paths = []
         for path, _ in pieces:
-            deep = np.flatnonzero(depth_window[path[:, 0], path[:, 1]] >= depth_fraction * max_depth)
-            if deep.size == 0:
-                continue
-            kept = path[deep[0]:deep[-1] + 1]
+            deep = np.flatnonzero(depth_window[path[:, 0], path[:, 1]] >= threshold)
+            if deep.size:
+                kept_paths.append((path[deep[0]:deep[-1] + 1], deep[0] == 0, deep[-1] == len(path) - 1))
+        if not kept_paths:
+            continue
+        line = np.zeros(core.shape, bool)
+        for kept, *_ in kept_paths:
             line[kept[:, 0], kept[:, 1]] = True
-            line_length += _path_length(kept, height.spacing)
-            open_ends += int(deep[0] == 0) + int(deep[-1] == len(path) - 1)
+        line_length, open_ends = _joined_length(kept_paths, height.spacing)
         core_pieces = label(core)
         core &= np.isin(core_pieces, np.unique(core_pieces[line]))
         distance = scipy.ndimage.distance_transform_edt(~line, sampling=(dy, dx))
@@ -271,8 +304,8 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         within = distance <= max(core_width, 2 * max(dx, dy))
         half = whole & within & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
         half_area = np.count_nonzero(half) * dx * dy
-        width = half_area / max(line_length, dx)
-        length = line_length + open_ends * width / 2
+        # An open end: the skeleton of an elongated region stops about half a width short of its end.
+        length = line_length + open_ends * half_area / max(line_length, dx) / 2
         width = half_area / length
         # Volume: the signed depth integrated over the wrinkle and its walls (within one width
         # plus the margin of the half-depth region), other wrinkles left out.
