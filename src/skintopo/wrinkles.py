@@ -157,15 +157,18 @@ def _farthest(cost, start, spacing):
 def _joined_length(paths, spacing):
     """Length (um) of a wrinkle's centre-line pieces, ordered along their principal axis:
     their lengths plus the straight gaps between consecutive pieces; and how many of the two
-    outer ends are open (the skeleton stopped there, not trimmed).
-    ``paths``: (kept pixels, start open, end open) for each piece."""
+    outer ends are open (the skeleton stopped there, not trimmed), as (pixel, outward
+    direction in pixels) pairs.
+    ``paths``: (kept pixels, start open, end open, the whole path) for each piece."""
     scale = np.asarray(spacing, float)
     points = np.concatenate([kept for kept, *_ in paths]) * scale
     axis = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2][0]
     ends = []
-    for kept, start_open, end_open in paths:
+    for kept, start_open, end_open, whole in paths:
         first, last = kept[0], kept[-1]
-        start, end = (first, start_open), (last, end_open)
+        # (pixel, open, outward direction from a point 3 pixels inward along the path)
+        start = (first, start_open, first - whole[min(len(whole) - 1, 3)])
+        end = (last, end_open, last - whole[max(0, len(whole) - 4)])
         if (last * scale) @ axis < (first * scale) @ axis:
             start, end = end, start
         ends.append((start, end, _path_length(kept, spacing)))
@@ -175,7 +178,19 @@ def _joined_length(paths, spacing):
         if (next_start[0] * scale) @ axis > (previous_end[0] * scale) @ axis:
             length += float(np.hypot(*((next_start[0] - previous_end[0]) * scale)))
     outer = (ends[0][0], max((e[1] for e in ends), key=lambda p: (p[0] * scale) @ axis))
-    return length, sum(is_open for _, is_open in outer)
+    return length, [(pixel, outward) for pixel, is_open, outward in outer if is_open]
+
+
+def _run_beyond(depth, end, outward, threshold, spacing, reach_um):
+    """How far (um, at most ``reach_um``) ``depth`` stays at or above ``threshold`` past a
+    path's ``end``, straight along ``outward`` (pixels), sampled bilinearly every 0.25 pixel."""
+    step = np.asarray(outward, float) / max(np.hypot(*outward), 1e-12)
+    pixel_um = np.hypot(step[0] * spacing[0], step[1] * spacing[1])
+    t = np.arange(1, int(4 * reach_um / pixel_um) + 1) * 0.25
+    samples = scipy.ndimage.map_coordinates(depth, [end[0] + t * step[0], end[1] + t * step[1]], order=1, mode="nearest")
+    below = np.flatnonzero(samples < threshold)
+    run = (t[below[0]] - 0.25 if below.size else t[-1]) if t.size else 0.0
+    return float(run * pixel_um)
 
 
 def _path_length(path, spacing):
@@ -274,14 +289,13 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         # length at half depth): their ends are trimmed to the first and last such point,
         # which cuts a furrow that continues the wrinkle's line and drops a piece that is no
         # part of the wrinkle's floor. The length is the pieces' lengths plus the gaps between
-        # them, plus half a width at each of the wrinkle's two ends where the skeleton stopped
-        # short of the region's end (not trimmed).
+        # them, plus what the skeleton left out at the wrinkle's two ends (see below).
         threshold = depth_fraction * max_depth
         kept_paths = []
         for path, _ in pieces:
             deep = np.flatnonzero(depth_window[path[:, 0], path[:, 1]] >= threshold)
             if deep.size:
-                kept_paths.append((path[deep[0]:deep[-1] + 1], deep[0] == 0, deep[-1] == len(path) - 1))
+                kept_paths.append((path[deep[0]:deep[-1] + 1], deep[0] == 0, deep[-1] == len(path) - 1, path))
         if not kept_paths:
             continue
         line = np.zeros(core.shape, bool)
@@ -304,12 +318,16 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         within = distance <= max(core_width, 2 * max(dx, dy))
         half = whole & within & (depth_window >= depth_fraction * np.nan_to_num(local)) & (weight > 1e-3 * weight.max())
         half_area = np.count_nonzero(half) * dx * dy
-        # An open end: the skeleton of an elongated region stops about half a width short of its end.
-        length = line_length + open_ends * half_area / max(line_length, dx) / 2
+        # At an open end the skeleton of an elongated region stops about half a width short of
+        # its end: d is followed on, straight, to where it falls below half depth, at most
+        # half a width (further on, the microrelief left in d would carry it along).
+        half_width = half_area / max(line_length, dx) / 2
+        length = line_length + sum(_run_beyond(depth_window, pixel, outward, threshold, height.spacing, half_width)
+                                   for pixel, outward in open_ends)
         width = half_area / length
         # Volume: the signed depth integrated over the wrinkle and its walls (within one width
         # plus the margin of the half-depth region), other wrinkles left out.
-        reach = width + margin_um
+        reach = 0.5 * width + margin_um
         walls = (scipy.ndimage.distance_transform_edt(~half, sampling=(dy, dx)) <= reach) & ~(extent_any[window] & ~whole)
         volume = depth_window[walls].sum() * pixel_area_mm2 * 1e-3  # um x mm^2 -> mm^3
         mean_depth = float(line_depth.mean())
