@@ -16,6 +16,8 @@ from skintopo.filters import (
     extract_profile,
     gaussian_transmission,
     level,
+    line_segment_closing,
+    line_segment_footprint,
     polynomial_form,
 )
 from skintopo.heightmap import HeightMap
@@ -76,6 +78,60 @@ def test_polynomial_form_is_the_least_squares_fit_over_the_valid_points(order):
     basis = np.stack([u**i * v**j for i in range(order + 1) for j in range(order + 1 - i)], axis=-1)
     coefficients, *_ = np.linalg.lstsq(basis[mask], z[mask], rcond=None)  # independent: QR-based lstsq
     np.testing.assert_allclose(polynomial_form(z, 1.0, order, mask), basis @ coefficients, atol=1e-10)
+
+
+def test_line_segment_closing_fills_valleys_narrower_than_the_segment_only():
+    """On a level surface: a groove 3 pixels wide along y and one 15 pixels wide along x. A
+    10-pixel (100 um) segment along x fills the narrow groove back to the surface exactly and
+    leaves the wide groove (long along x) as it is; along y the wide groove (15 px across)
+    stays, and so does the narrow one (long along y). A tilted plane passes unchanged (away
+    from the border, where the segment would reach out of the field)."""
+    rows, columns = np.mgrid[0:60, 0:80].astype(float)
+    tilted = 0.3 * columns - 0.2 * rows
+    for angle in (0.0, 30.0, 90.0, 135.0):
+        np.testing.assert_allclose(line_segment_closing(tilted, 10.0, 100.0, angle)[10:-10, 10:-10], tilted[10:-10, 10:-10], atol=1e-12)
+    plane = np.full(rows.shape, 7.0)
+    narrow = np.abs(columns - 40) <= 1
+    wide = np.abs(rows - 30) <= 7
+    z = plane - 20.0 * narrow - 30.0 * wide  # flat-bottomed grooves
+    along_x = line_segment_closing(z, 10.0, 100.0, 0.0)
+    np.testing.assert_allclose(along_x[narrow & ~wide], plane[narrow & ~wide], atol=1e-12)
+    np.testing.assert_array_equal(along_x[wide & (np.abs(columns - 40) > 6)], z[wide & (np.abs(columns - 40) > 6)])
+    np.testing.assert_allclose(along_x[~narrow & ~wide], plane[~narrow & ~wide], atol=1e-12)
+    along_y = line_segment_closing(z, 10.0, 100.0, 90.0)
+    far = (np.abs(rows - 30) > 12) | (np.abs(columns - 40) > 6)
+    np.testing.assert_array_equal(along_y[far], z[far])
+    # A 300 um segment across the wide groove (150 um) fills it to the plane.
+    across = line_segment_closing(z, 10.0, 300.0, 90.0)
+    inside = wide & ~narrow & (rows > 16) & (rows < 44)
+    np.testing.assert_allclose(across[inside], plane[inside], atol=1e-12)
+
+
+def test_line_segment_closing_leaves_masked_points_out():
+    """A masked point takes no part: the result is that of the map ending there."""
+    rng = np.random.default_rng(3)
+    z = rng.normal(size=(30, 40))
+    mask = np.ones_like(z, dtype=bool)
+    mask[:, 25:] = False
+    z[~mask] = -100.0  # whatever is there must not count
+    for angle in (0.0, 30.0, 90.0):
+        closed = line_segment_closing(z, 1.0, 7.0, angle, mask)
+        np.testing.assert_array_equal(closed[:, :25], line_segment_closing(z[:, :25], 1.0, 7.0, angle))
+        np.testing.assert_array_equal(closed[~mask], z[~mask])
+        assert (closed[mask] >= z[mask]).all()  # a closing only fills
+
+
+@pytest.mark.parametrize("angle", [0.0, 17.0, 45.0, 90.0, 120.0, 178.0])
+def test_line_segment_footprint_is_a_symmetric_digital_line(angle):
+    footprint = line_segment_footprint(200.0, angle, (10.0, 20.0))  # rectangular pixels
+    np.testing.assert_array_equal(footprint, footprint[::-1, ::-1])
+    rows, columns = np.nonzero(footprint)
+    centre = np.array(footprint.shape) // 2
+    x, y = (columns - centre[1]) * 20.0, -(rows - centre[0]) * 10.0
+    # every pixel within half a pixel diagonal of the ideal line, ends within half the length
+    distance = np.abs(-np.sin(np.radians(angle)) * x + np.cos(np.radians(angle)) * y)
+    assert distance.max() <= 0.5 * np.hypot(10.0, 20.0)
+    assert np.hypot(x, y).max() <= 100.0 + 0.5 * np.hypot(10.0, 20.0)
 
 
 def test_profile_extraction_across_a_ramp():

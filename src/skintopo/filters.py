@@ -53,7 +53,7 @@ def gaussian_transmission(wavelength_um, cutoff_um):
 _FFT_SIGMA_PX = 8.0  # from this width on, Gaussian smoothing by FFT is faster than direct
 
 
-def _smooth_many(images, sigmas):
+def gaussian_smooth(images, sigmas):
     """Separable Gaussian smoothing of several same-shaped images, zero outside the field.
 
     Narrow kernels: direct convolution (truncated at 4 sigma). Wide ones: one batched FFT
@@ -115,7 +115,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     # Centred coordinates (pixels) keep the moment sums well conditioned.
     y = (np.arange(rows) - rows / 2)[:, None] * np.ones((1, columns))
     x = np.ones((rows, 1)) * (np.arange(columns) - columns / 2)[None, :]
-    s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = _smooth_many(
+    s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = gaussian_smooth(
         [weight, weight * x, weight * y, weight * x * x, weight * x * y, weight * y * y, values, values * x, values * y], sigmas
     )
     # Moments about each output point (x0, y0).

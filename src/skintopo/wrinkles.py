@@ -64,7 +64,14 @@ from skimage.measure import label, regionprops
 from skimage.morphology import skeletonize
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, line_segment_closing, line_segment_footprint, polynomial_form
+from skintopo.filters import (
+    areal_gaussian_filter,
+    gaussian_sigma_px,
+    gaussian_smooth,
+    line_segment_closing,
+    line_segment_footprint,
+    polynomial_form,
+)
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import WrinkleSegmentation
 
@@ -199,6 +206,15 @@ def _path_length(path, spacing):
     return float(np.hypot(steps[:, 0], steps[:, 1]).sum())
 
 
+def _bounding_box(points, pad):
+    """Slices of the bounding box of the true ``points``, widened by ``pad`` pixels (one
+    number, or one per axis) and clipped at the array's start."""
+    pad = np.broadcast_to(pad, 2)
+    rows, columns = np.nonzero(points)
+    return (slice(max(0, rows.min() - pad[0]), rows.max() + pad[0] + 1),
+            slice(max(0, columns.min() - pad[1]), columns.max() + pad[1] + 1))
+
+
 def _closed_along(z, mask, spacing, direction, region, length_um):
     """Heights of ``region`` after the closing along each point's ``direction`` image (in
     ANGLE_STEP_DEG steps); the closing of each step runs on the bounding box of its points
@@ -208,9 +224,7 @@ def _closed_along(z, mask, spacing, direction, region, length_um):
     for step in np.unique(steps[region]):
         angle = step * ANGLE_STEP_DEG
         reach = 2 * (np.array(line_segment_footprint(length_um, angle, spacing).shape) // 2)
-        rows, columns = np.nonzero(region & (steps == step))
-        box = (slice(max(0, rows.min() - reach[0]), rows.max() + reach[0] + 1),
-               slice(max(0, columns.min() - reach[1]), columns.max() + reach[1] + 1))
+        box = _bounding_box(region & (steps == step), reach)
         closed = line_segment_closing(z[box], spacing, length_um, angle, mask[box])
         pick = region[box] & (steps[box] == step)
         out[box][pick] = closed[pick]
@@ -229,9 +243,6 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         depth = np.full(height.shape, np.nan)
         return WrinkleMeasures([], _totals([], height, 0), np.zeros(height.shape, np.int32), depth, np.zeros(height.shape, bool))
 
-    def s_filtered(z, mask):
-        return areal_gaussian_filter(z, height.spacing, short_cutoff_um, mask) if short_cutoff_um else z
-
     margin_px = max(1, int(round(margin_um / min(height.spacing))))
     extent_any = np.asarray(segmentation.extent, bool)
     around = height.mask & ~scipy.ndimage.binary_dilation(extent_any, iterations=margin_px)
@@ -244,7 +255,7 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
     height = HeightMap(height.z - polynomial_form(height.z, height.spacing, 2, around), height.spacing, height.mask)
     # Local surrounding skin level, from the furrow-free skin outside the widened wrinkles.
     plateau = plateau_surface(height, furrow_closing_um)
-    smooth = s_filtered(plateau, height.mask)
+    smooth = areal_gaussian_filter(plateau, height.spacing, short_cutoff_um, height.mask) if short_cutoff_um else plateau
     reference = areal_gaussian_filter(smooth, height.spacing, reference_cutoff_um, around)
     depth = np.where(height.mask, reference - smooth, np.nan)
 
@@ -257,8 +268,7 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         # Work in a window around the wrinkle (its extent plus the smoothing, closing and margin reach).
         sigma = max(1.0, region.axis_minor_length)
         pad = int(3 * sigma + margin_px + along_closing_um / min(dy, dx) + 2)
-        rows_any, columns_any = np.nonzero(whole_full)
-        window = (slice(max(0, rows_any.min() - pad), rows_any.max() + pad + 1), slice(max(0, columns_any.min() - pad), columns_any.max() + pad + 1))
+        window = _bounding_box(whole_full, pad)
         core = segmentation.labels[window] == region.label
         whole = whole_full[window]
         pieces = centre_lines(skeletonize(core), height.spacing, along_closing_um)
@@ -267,19 +277,28 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         for path, direction in pieces:
             skeleton_paths[path[:, 0], path[:, 1]] = True
             direction_on_paths[path[:, 0], path[:, 1]] = direction
-        nearest = scipy.ndimage.distance_transform_edt(~skeleton_paths, return_distances=False, return_indices=True)
+        path_distance, nearest = scipy.ndimage.distance_transform_edt(~skeleton_paths, sampling=(dy, dx), return_indices=True)
         # On the wrinkle (its extent widened by the margin), furrows are closed along the centre
         # line's local direction instead: the four-way closing would fill the wrinkle's floor.
         # That closing leaves the furrows that run along the wrinkle, which the four-way one
         # fills: their mean depth, measured with the same closing on the skin around the
-        # wrinkle (in the window), is added back, so both closings share one level.
+        # wrinkle (up to a segment's length beyond it), is added back, so both closings share
+        # one level.
         near = scipy.ndimage.binary_dilation(whole, iterations=margin_px) & height.mask[window]
-        ring = around[window]
+        ring = around[window] & (path_distance <= path_distance[near].max() + along_closing_um)
         closed = _closed_along(height.z[window], height.mask[window], height.spacing,
                                direction_on_paths[nearest[0], nearest[1]], near | ring, along_closing_um)
         left_by_along = float(np.mean(plateau[window][ring] - closed[ring])) if ring.any() else 0.0
-        closed = np.where(near, closed + left_by_along, plateau[window])
-        depth_window = np.nan_to_num(np.where(height.mask[window], reference[window] - s_filtered(closed, height.mask[window]), np.nan))
+        # The S-filter is linear: S(closed) = S(plateau), known, + S(the change on the wrinkle),
+        # which is zero beyond the filter's reach from it, so it is filtered on that box alone.
+        change = np.where(near, closed + left_by_along - plateau[window], 0.0)
+        smooth_window = smooth[window].copy()
+        if short_cutoff_um:
+            box = _bounding_box(near, 2 * int(np.ceil(4 * gaussian_sigma_px(short_cutoff_um, min(dy, dx)))) + 2)
+            smooth_window[box] += areal_gaussian_filter(change[box], height.spacing, short_cutoff_um, height.mask[window][box])
+        else:
+            smooth_window += change
+        depth_window = np.nan_to_num(np.where(height.mask[window], reference[window] - smooth_window, np.nan))
         depth[window][near] = depth_window[near]
         # Maximum depth: the median of the deepest part of the paths (d >= 0.6 x its 95th
         # percentile), robust to what the closing left of the furrows.
@@ -310,9 +329,9 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         # Local centre-line depth spread across the wrinkle: a normalised Gaussian average of
         # the centre line's depths (sigma about one wrinkle width), so noise on the centre
         # line does not raise the half-depth threshold as a maximum would.
-        weight = scipy.ndimage.gaussian_filter(line.astype(float), sigma)
+        weight, weighted = gaussian_smooth([line.astype(float), np.where(line, depth_window, 0.0)], (sigma, sigma))
         with np.errstate(invalid="ignore", divide="ignore"):
-            local = scipy.ndimage.gaussian_filter(np.where(line, depth_window, 0.0), sigma) / weight
+            local = weighted / weight
         # The half-depth region stays within one core width of the centre line, so a furrow
         # branching off the wrinkle (as deep as half the wrinkle) is not counted as its width.
         within = distance <= max(core_width, 2 * max(dx, dy))
