@@ -12,7 +12,7 @@ from skintopo.filters import areal_gaussian_filter
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.surfaces import END_TAPER, _coordinates, wrinkle_relief
-from skintopo.wrinkles import DEFAULT_SHORT_CUTOFF_UM, measure_wrinkles
+from skintopo.wrinkles import DEFAULT_SHORT_CUTOFF_UM, _path_length, centre_lines, measure_wrinkles
 
 
 def truth(surface, index):
@@ -60,13 +60,12 @@ def test_measures_of_known_wrinkles_on_smooth_skin(preset):
 
 
 @pytest.mark.slow
-def test_measures_with_microrelief_count_exact_errors_reported():
-    """With the microrelief on, counts are exact and errors small on average; single wrinkles
-    of the low state (50-60 um deep, S-filtered microrelief 9 um RMS) can miss the per-wrinkle
-    tolerances: that is reported (printed, and in the issue note), not asserted away. The
-    moderate and high states (>= 80 um) are held to the issue's tolerances."""
+def test_measures_with_microrelief_within_the_issue_tolerances():
+    """With the microrelief on (furrows 20-60 um deep, the low state's wrinkles only 50-60 um),
+    on seeds 1-6 of all three states: counts exact, length and max depth within 10%, width
+    and volume within 15%, for every wrinkle."""
     table, miscounts = [], []
-    for seed in (1, 2, 3):
+    for seed in range(1, 7):
         for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
             surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
             measures, errors = relative_errors(surface)
@@ -76,11 +75,25 @@ def test_measures_with_microrelief_count_exact_errors_reported():
     assert not miscounts
     for name, tolerance in (("length_mm", 0.10), ("max_depth_um", 0.10), ("mean_width_mm", 0.15), ("volume_mm3", 0.15)):
         values = np.array([e[name] for _, e in table])
-        deep = np.array([e[name] for preset, e in table if preset != "forehead-low"])
         print(f"{name:>14}: mean error {100 * values.mean():+.1f}%, mean |error| {100 * np.abs(values).mean():.1f}%, "
-              f"worst {100 * np.abs(values).max():.1f}% (moderate/high: worst {100 * np.abs(deep).max():.1f}%)")
-        assert np.abs(values).mean() < 0.10
-        assert np.abs(deep).max() < tolerance, name
+              f"worst {100 * np.abs(values).max():.1f}%")
+        assert np.abs(values).max() < tolerance, name
+
+
+def test_centre_line_is_the_longest_path_without_side_branches():
+    skeleton = np.zeros((40, 80), bool)
+    skeleton[20, 10:70] = True  # 60 pixels along x
+    skeleton[21:30, 40] = True  # a side branch of 9 pixels
+    skeleton[5, 5:8] = True  # a second piece, 3 pixels
+    pieces = centre_lines(skeleton, (2.0, 1.5), 100.0)
+    lengths = sorted(_path_length(path, (2.0, 1.5)) for path, _ in pieces)
+    assert lengths == [2 * 1.5, 59 * 1.5]
+    main = max(pieces, key=len)
+    np.testing.assert_allclose(main[1], 0.0, atol=1e-9)
+    diagonal = np.eye(30, dtype=bool)  # rows down, columns right: 45 degrees below +x
+    path, direction = centre_lines(diagonal, (1.0, 1.0), 5.0)[0]
+    assert len(path) == 30 and np.isclose(_path_length(path, (1.0, 1.0)), 29 * np.sqrt(2))
+    np.testing.assert_allclose(direction, 135.0)
 
 
 def test_wrinkles_command(tmp_path, capsys):
