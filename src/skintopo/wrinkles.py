@@ -145,13 +145,13 @@ def centre_lines(skeleton, spacing, smoothing_um):
     dy, dx = spacing
     pieces = label(skeleton, connectivity=2)
     cost = np.where(skeleton, 1.0, np.inf)
+    sigma = max(1.0, smoothing_um / min(dy, dx) / 2)
     lines = []
     for piece in range(1, pieces.max() + 1):
         start = tuple(np.argwhere(pieces == piece)[0])
         far = _farthest(cost, start, spacing)[0]
         end, search = _farthest(cost, far, spacing)
         path = np.array(search.traceback(end))
-        sigma = max(1.0, smoothing_um / min(dy, dx) / 2)
         smooth = scipy.ndimage.gaussian_filter1d(path.astype(float), sigma, axis=0, mode="nearest")
         step = np.gradient(smooth, axis=0) if len(path) > 1 else np.array([[0.0, 1.0]])
         direction = np.degrees(np.arctan2(-step[:, 0] * dy, step[:, 1] * dx)) % 180.0
