@@ -29,7 +29,7 @@ def main():
         result = {"benchmark": f"skintopo batch, {COUNT} acquisitions of 512x512 (16 images each), measure only"}
         for workers in (1, 2):
             start = time.perf_counter()
-            counts, _ = run_study(root / "study.csv", root / f"out{workers}", workers=workers)
+            counts, _, _ = run_study(root / "study.csv", root / f"out{workers}", workers=workers)
             seconds = time.perf_counter() - start
             assert counts["computed"] == COUNT, counts
             result[f"acquisitions_per_minute_{workers}_worker"] = round(60 * COUNT / seconds, 2)

@@ -43,7 +43,7 @@ def tables(out):
 @pytest.fixture(scope="module")
 def local_run(study, tmp_path_factory):
     out = tmp_path_factory.mktemp("local")
-    counts, _ = run_study(study, out, workers=2)
+    counts, _, _ = run_study(study, out, workers=2)
     return out, counts
 
 
@@ -67,7 +67,7 @@ def test_local_processes(local_run):
 def test_dask_local_cluster_gives_identical_tables(study, local_run, tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        counts, _ = run_study(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
+        counts, _, _ = run_study(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
     assert counts == local_run[1]
     for name, table in tables(tmp_path / "dask").items():
         pd.testing.assert_frame_equal(table, tables(local_run[0])[name])
@@ -86,7 +86,7 @@ def test_interrupted_batch_resumes_without_recomputing(study, local_run, tmp_pat
     finished = len(list(out.glob("items/*/*/*/batch.json")))
     assert 2 <= finished < 5
     assert not list(out.glob("items/**/.*.partial"))  # nothing half-written
-    counts, _ = run_study(study, out, workers=2)
+    counts, _, _ = run_study(study, out, workers=2)
     assert counts["skipped"] == finished and counts["computed"] + counts["skipped"] == 8
     for name, table in tables(out).items():
         pd.testing.assert_frame_equal(table, tables(local_run[0])[name])

@@ -8,22 +8,36 @@ from __future__ import annotations
 
 import argparse
 import base64
-import hashlib
-import platform
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from skintopo import __version__
-from skintopo.acquisition import BANDS, DEFAULT_SATURATION, MANIFEST_NAME, load_acquisition
+from skintopo.acquisition import BANDS, DEFAULT_SATURATION, load_acquisition
+from skintopo.batch import DEFAULT_SCHEDULER_TIMEOUT_S
+from skintopo.correction import DEFAULT_METHOD as DEFAULT_CORRECTION_METHOD
+from skintopo.correction import METHODS as CORRECTION_METHODS
 from skintopo.errors import SkinTopoError
 from skintopo.height import AUTO, DEFAULT_INTEGRATOR, INTEGRATORS
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, SOLVERS
-from skintopo.outputs import check_output_folder, staged_output_folder, write_json, write_json_atomic, write_label_image
-from skintopo.reconstruct import SPECULAR_FREE, band_statistics, reconstruct_band
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, SOLVERS
+from skintopo.outputs import check_output_file, check_output_folder, staged_output_folder, write_json, write_json_atomic
+from skintopo.pipeline import (
+    HEIGHT_METHODS,
+    HeightOptions,
+    MeasureOptions,
+    ReconstructionOptions,
+    SegmentationOptions,
+    TextureOptions,
+    acquisition_summary,
+    reconstruct_bands,
+)
+from skintopo.reconstruct import SPECULAR_FREE, band_statistics
+from skintopo.results import load_albedo_beside, load_height_input, run_header
 from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
+from skintopo.texture import DEFAULT_P, DEFAULT_Q
 
 
 def _number_type(convert, accept, requirement):
@@ -45,6 +59,8 @@ _positive_float = _number_type(float, lambda v: v > 0, "a positive number")
 _non_negative_float = _number_type(float, lambda v: v >= 0, "zero or positive")
 _fraction = _number_type(float, lambda v: 0 <= v < 1, "in [0, 1)")
 _size = _number_type(int, lambda v: v >= 16, "at least 16 pixels")
+_positive_int = _number_type(int, lambda v: v >= 1, "1 or more")
+_non_negative_int = _number_type(int, lambda v: v >= 0, "0 or more")
 
 
 def _progress(iterable, *, quiet, desc, total=None):
@@ -58,32 +74,43 @@ def _say(args, message):
         print(message)
 
 
-def _acquisition_fingerprint(acquisition):
-    """SHA-256 over the manifest (or DiLiGenT lists) so a summary identifies its input
-    without recording the folder's path, which may name the person."""
-    digest = hashlib.sha256()
-    source = acquisition.source
-    for name in (MANIFEST_NAME, "filenames.txt", "light_directions.txt", "light_intensities.txt"):
-        if (source / name).is_file():
-            digest.update((source / name).read_bytes())
-    return digest.hexdigest()
-
-
 def _add_acquisition_options(parser):
     parser.add_argument("acquisition", type=Path, help="acquisition folder (acquisition.json or DiLiGenT layout)")
+    _add_reconstruction_options(parser)
+
+
+def _add_reconstruction_options(parser):
+    """Options of the acquisition -> normals -> height stages (``ReconstructionOptions``)."""
     parser.add_argument(
-        "--pixel-um", type=_positive_float, default=None, help="pixel size in micrometres for folders without one (DiLiGenT; default 1)"
+        "--pixel-um", type=_positive_float, default=None, help="pixel size in micrometres for inputs without one (DiLiGenT folders, .npy maps; default 1)"
     )
     parser.add_argument(
         "--saturation", type=_fraction, default=DEFAULT_SATURATION,
         help=f"fraction of full scale at or above which a pixel is saturated and left out (default {DEFAULT_SATURATION})",
     )
-    parser.add_argument("--solver", choices=SOLVERS, default="least-squares",
-                        help="photometric stereo solver: least-squares (default) or robust (outlier rejection)")
+    parser.add_argument("--solver", choices=SOLVERS, default=DEFAULT_SOLVER,
+                        help=f"photometric stereo solver: least-squares or robust (outlier rejection); default {DEFAULT_SOLVER}")
     parser.add_argument(
         "--shadow-fraction", type=_fraction, default=DEFAULT_SHADOW_FRACTION,
         help="observations below this fraction of a pixel's brightest are taken as shadow and left out "
         f"(default {DEFAULT_SHADOW_FRACTION})",
+    )
+    parser.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
+        help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
+
+
+def _reconstruction_options(args):
+    return ReconstructionOptions(pixel_um=args.pixel_um, saturation=args.saturation, shadow_fraction=args.shadow_fraction,
+                                 solver=args.solver, integrator=args.integrator)
+
+
+def _measure_options(args, method=None):
+    return MeasureOptions(
+        reconstruction=_reconstruction_options(args),
+        height=HeightOptions(method or args.method),
+        segmentation=_segmentation_options(args),
+        texture=TextureOptions(level_order=args.level, p=args.p, q=args.q),
+        regions=tuple(args.region),
     )
 
 
@@ -94,31 +121,8 @@ def _load(args, bands):
     return acquisition
 
 
-def _acquisition_summary(acquisition):
-    return {
-        "name": acquisition.source.name,
-        "sha256": _acquisition_fingerprint(acquisition),
-        "layout": acquisition.layout,
-        "shape": list(acquisition.shape),
-        "pixel_um": acquisition.pixel_um,
-        "pixel_um_assumed": acquisition.pixel_um_assumed,
-        "bands": {b: len(acquisition.bands[b].files) for b in acquisition.bands},
-    }
-
-
-def _summary(command, args, acquisition=None, **extra):
-    summary = {"skintopo_version": __version__, "command": command, "python": platform.python_version()}
-    if acquisition is not None:
-        summary["acquisition"] = _acquisition_summary(acquisition)
-    summary.update(extra)
-    return summary
-
-
-def _reconstruct_all(args, acquisition, bands=None):
-    return {
-        band: reconstruct_band(acquisition, band, integrator=args.integrator, shadow_fraction=args.shadow_fraction, solver=args.solver)
-        for band in _progress(bands or list(acquisition.bands), quiet=args.quiet, desc="reconstruct")
-    }
+def _band_progress(args):
+    return lambda bands: _progress(bands, quiet=args.quiet, desc="reconstruct")
 
 
 def _write_band_outputs(folder, result):
@@ -135,10 +139,10 @@ def cmd_reconstruct(args):
     started = time.perf_counter()
     acquisition = _load(args, bands)
     seconds_load = time.perf_counter() - started
-    results = _reconstruct_all(args, acquisition, [SPECULAR_FREE] if derived else None)
-    summary = _summary(
-        "reconstruct", args, acquisition,
-        options={"integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction, "solver": args.solver},
+    options = _reconstruction_options(args)
+    results = reconstruct_bands(acquisition, options, [SPECULAR_FREE] if derived else None, _band_progress(args))
+    summary = run_header(
+        "reconstruct", acquisition=acquisition_summary(acquisition), options=asdict(options),
         units={"height": "um", "normals": "unit vector, camera frame (x right, y up, z toward camera)"},
         seconds_load=seconds_load,
         bands={band: band_statistics(result) for band, result in results.items()},
@@ -161,49 +165,37 @@ def cmd_reconstruct(args):
 
 
 def _segmentation_options(args):
-    return {
-        "cutoff_um": args.cutoff_um,
-        "short_cutoff_um": args.short_cutoff_um,
-        "min_depth_um": args.min_depth_um,
-        "min_length_um": args.min_length_um,
-    }
+    return SegmentationOptions(cutoff_um=args.cutoff_um, short_cutoff_um=args.short_cutoff_um, min_depth_um=args.min_depth_um,
+                               min_length_um=args.min_length_um)
 
 
 def cmd_correct(args):
-    from skintopo.correction import REQUIRED_BANDS, spectral_correction
+    from skintopo.outputs import write_label_image
+    from skintopo.pipeline import acquisition_height
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
     acquisition = _load(args, None)
-    missing = [b for b in REQUIRED_BANDS if b not in acquisition.bands]
-    if missing:
-        raise SkinTopoError(
-            f"{args.acquisition}: the spectral correction needs red, green and blue images; missing {missing} "
-            f"(the acquisition has {sorted(acquisition.bands)})"
-        )
-    results = _reconstruct_all(args, acquisition)
-    correction = spectral_correction(
-        {band: results[band].stereo.normals for band in REQUIRED_BANDS}, acquisition.pixel_um,
-        method=args.method, integrator=args.integrator, mask=acquisition.mask, **_segmentation_options(args),
-    )
-    summary = _summary(
-        "correct", args, acquisition,
-        options={
-            "integrator": args.integrator, "saturation": args.saturation, "shadow_fraction": args.shadow_fraction,
-            "method": args.method, "segmentation": correction.segmentation.parameters,
-        },
-        wrinkles_found=correction.segmentation.count,
-        wrinkle_area_fraction=float(correction.segmentation.mask.mean()),
-        bands={band: band_statistics(result) for band, result in results.items()},
+    options = MeasureOptions(reconstruction=_reconstruction_options(args), height=HeightOptions(args.method),
+                             segmentation=_segmentation_options(args))
+    made = acquisition_height(acquisition, options, _band_progress(args))
+    segmentation = made.correction.segmentation
+    summary = run_header(
+        "correct", acquisition=acquisition_summary(acquisition),
+        options=options.as_dict() | {"segmentation_parameters": segmentation.parameters},
+        height=made.description,
+        wrinkles_found=segmentation.count,
+        wrinkle_area_fraction=float(segmentation.mask.mean()),
+        bands={band: band_statistics(result) for band, result in made.bands.items()},
     )
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition]) as staging:
-        correction.height.save(staging / "height.x3p")
-        write_label_image(staging / "wrinkles.png", correction.segmentation.labels)
-        for band, result in results.items():
+        made.height.save(staging / "height.x3p")
+        write_label_image(staging / "wrinkles.png", segmentation.labels)
+        for band, result in made.bands.items():
             _write_band_outputs(staging / band, result)
         summary["seconds_total"] = time.perf_counter() - started
         write_json(staging / "summary.json", summary)
-    _say(args, f"{correction.segmentation.count} wrinkle(s) segmented; corrected height ({args.method}) in {Path(args.out).resolve() / 'height.x3p'}")
+    _say(args, f"{segmentation.count} wrinkle(s) segmented; height: {made.description}, in {Path(args.out).resolve() / 'height.x3p'}")
     return 0
 
 
@@ -211,9 +203,8 @@ def cmd_evaluate(args):
     from skintopo.evaluation import evaluate_height
     from skintopo.heightmap import HeightMap
 
-    output = Path(args.out)
-    if output.exists() and not args.overwrite:
-        raise SkinTopoError(f"{output}: exists; use --overwrite to replace it")
+    inputs = [args.result, args.reference] + ([args.wrinkles] if args.wrinkles else [])
+    check_output_file(args.out, overwrite=args.overwrite, inputs=inputs)
     result = HeightMap.load(args.result, pixel_um=args.pixel_um)
     reference = HeightMap.load(args.reference, pixel_um=args.pixel_um)
     labels = None
@@ -225,14 +216,14 @@ def cmd_evaluate(args):
             raise SkinTopoError(f"{args.wrinkles}: wrinkle image size {labels.shape} differs from the reference {reference.shape}")
     report = evaluate_height(result, reference, wrinkle_labels=labels, register=not args.no_register)
     report = {"result": Path(args.result).name, "reference": Path(args.reference).name, "units": "um, degrees", **report}
-    write_json_atomic(output, report)
+    write_json_atomic(args.out, report)
     if not args.quiet:
         for key, value in report.items():
             if isinstance(value, float):
                 print(f"{key:<34} {value:12.4f}")
             elif isinstance(value, list) and value and isinstance(value[0], float):
                 print(f"{key:<34} " + " ".join(f"{v:.3f}" for v in value))
-        print(f"wrote {output.resolve()}")
+        print(f"wrote {Path(args.out).resolve()}")
     return 0
 
 
@@ -248,13 +239,16 @@ def cmd_paper_tables(args):
 
 
 def cmd_demo(args):
-    from skintopo.correction import spectral_correction
     from skintopo.evaluation import evaluate_height
+    from skintopo.pipeline import acquisition_height, measure_height
+    from skintopo.report import cross_section_pngs
+    from skintopo.results import write_measurement
     from skintopo.segmentation import segmentation_quality
     from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 
     check_output_folder(args.out, overwrite=args.overwrite)
     started = time.perf_counter()
+    options = MeasureOptions(height=HeightOptions("paper"))
     with staged_output_folder(args.out, overwrite=args.overwrite) as staging:
         spec = preset_spec(args.preset, size_px=args.size, pixel_um=20.0)
         surface = make_surface(spec, seed=args.seed)
@@ -262,34 +256,27 @@ def cmd_demo(args):
         bands, info = simulate_acquisition(surface, settings, seed=args.seed)
         write_synthetic_acquisition(staging / "acquisition", surface, bands, settings=settings, seed=args.seed, info=info)
         _say(args, f"simulated {args.preset}, {args.skin} skin, {args.size}x{args.size} px at 20 um ({time.perf_counter() - started:.1f} s)")
-        args.acquisition, args.pixel_um, args.saturation = staging / "acquisition", None, DEFAULT_SATURATION
-        args.shadow_fraction, args.integrator, args.solver = DEFAULT_SHADOW_FRACTION, DEFAULT_INTEGRATOR, "least-squares"
-        acquisition = _load(args, None)
-        results = _reconstruct_all(args, acquisition)
-        correction = spectral_correction({b: results[b].stereo.normals for b in ("red", "green", "blue")}, acquisition.pixel_um)
-        heights = {band: result.height for band, result in results.items()} | {"algorithm": correction.height}
+        acquisition = load_acquisition(staging / "acquisition")
+        made = acquisition_height(acquisition, options, _band_progress(args))
+        heights = {band: result.height for band, result in made.bands.items()} | {"algorithm": made.height}
         evaluations = {
             name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
             for name, height in heights.items()
         }
         result_folder = staging / "result"
         result_folder.mkdir()
-        for band, result in results.items():
+        for band, result in made.bands.items():
             _write_band_outputs(result_folder / band, result)
-        args.region, args.level, args.p, args.q = [], 1, 10.0, 80.0
-        args.cutoff_um, args.short_cutoff_um, args.min_depth_um, args.min_length_um = (
-            DEFAULT_CUTOFF_UM, DEFAULT_SHORT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM)
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
-                  "height": "spectral correction (paper)"}
-        from skintopo.report import cross_section_pngs
-
-        figures = cross_section_pngs(heights, surface.height, surface.wrinkle_labels)
-        _write_measurements(result_folder, args, correction.height, results["red"].stereo.albedo, source,
-                            title=f"skintopo demo: simulated {args.preset}, {args.skin} skin", evaluations=evaluations, cross_sections=figures)
-        summary = _summary(
-            "demo", args, acquisition, preset=args.preset, skin=args.skin, seed=args.seed,
-            segmentation=segmentation_quality(correction.segmentation.mask, surface.wrinkle_labels > 0)
-            | {"wrinkles_found": correction.segmentation.count, "wrinkles_true": len(spec.wrinkles)},
+                  "height": made.description}
+        measurement = measure_height(made.height, options, albedo=made.albedo, source=source)
+        write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
+                          evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels))
+        segmentation = made.correction.segmentation
+        summary = run_header(
+            "demo", acquisition=acquisition_summary(acquisition), preset=args.preset, skin=args.skin, seed=args.seed,
+            segmentation=segmentation_quality(segmentation.mask, surface.wrinkle_labels > 0)
+            | {"wrinkles_found": segmentation.count, "wrinkles_true": len(spec.wrinkles)},
             evaluation=evaluations,
         )
         summary["seconds_total"] = time.perf_counter() - started
@@ -303,7 +290,7 @@ def cmd_demo(args):
             )
         seg = summary["segmentation"]
         print(f"\nwrinkles segmented: {seg['wrinkles_found']} of {seg['wrinkles_true']} (IoU {seg['iou']:.2f} with the true half-depth regions)")
-        print(f"report: {(Path(args.out) / 'result' / 'report.html').resolve()}")
+        print(f"measured height: {made.description}; report: {(Path(args.out) / 'result' / 'report.html').resolve()}")
         print(f"wrote {Path(args.out).resolve()} in {summary['seconds_total']:.1f} s")
     return 0
 
@@ -319,96 +306,28 @@ def _parse_region(text):
     return name, (x0, y0, x1, y1)
 
 
-def _crop(height, box, name):
-    from skintopo.heightmap import HeightMap
-
-    dy, dx = height.spacing
-    x0, y0, x1, y1 = box
-    c0, c1 = int(round(x0 / dx)), int(round(x1 / dx)) + 1
-    r0, r1 = int(round(y0 / dy)), int(round(y1 / dy)) + 1
-    rows, columns = height.shape
-    if c0 < 0 or r0 < 0 or c1 > columns or r1 > rows:
-        raise SkinTopoError(f"region {name!r} ({box} um) lies outside the map ({(columns - 1) * dx:g} x {(rows - 1) * dy:g} um)")
-    return HeightMap(height.z[r0:r1, c0:c1], height.spacing, height.mask[r0:r1, c0:c1])
-
-
-def _measured_height(args):
-    """The height map to measure and its albedo: a height file as it is, or an acquisition
-    run through the paper's method (corrected height when red, green and blue are present,
-    else white or the only band)."""
-    path = Path(args.input)
-    if path.is_file():
-        return _load_height_input(path, args.pixel_um), None, {"input": path.name, "kind": "height map"}
-    from skintopo.correction import REQUIRED_BANDS, spectral_correction
-
-    args.acquisition = path
-    acquisition = _load(args, None)
-    results = _reconstruct_all(args, acquisition)
-    albedo_band = "red" if "red" in results else next(iter(results))
-    albedo = results[albedo_band].stereo.albedo
-    source = {"input": path.name, "kind": "acquisition", "acquisition": _acquisition_summary(acquisition)}
-    if all(b in results for b in REQUIRED_BANDS):
-        correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um,
-                                         mask=acquisition.mask, integrator=args.integrator, **_segmentation_options(args))
-        return correction.height, albedo, source | {"height": "spectral correction (paper)"}
-    band = "white" if "white" in results else next(iter(results))
-    return results[band].height, albedo, source | {"height": f"{band} band"}
-
-
-def _write_measurements(staging, args, height, albedo, source, *, title, evaluations=None, cross_sections=()):
-    """Texture, fractal and wrinkle measures of ``height`` into ``staging``, with the report."""
-    import csv
-
-    from skintopo.report import build_report
-    from skintopo.segmentation import segment_wrinkles
-    from skintopo.texture import finite_or_none, measure_texture
-    from skintopo.wrinkles import measure_wrinkles
-
-    regions = {"field": height} | {name: _crop(height, box, name) for name, box in args.region}
-    fractal_results = []
-    measured = {}
-    for name, region in regions.items():
-        measured[name] = measure_texture(region, level_order=args.level, p=args.p, q=args.q,
-                                         fractal_results=fractal_results if name == "field" else None)
-    rows = [
-        {"region": name, "name": p.name, "value": finite_or_none(p.value), "unit": p.unit, "reference": p.reference}
-        for name, parameters in measured.items()
-        for p in parameters
-    ]
-    segmentation = segment_wrinkles(height, **_segmentation_options(args))
-    wrinkles = measure_wrinkles(height, segmentation)
-    settings = {"source": source, "level_order": args.level, "p": args.p, "q": args.q, "segmentation": segmentation.parameters,
-                "solver": args.solver, "integrator": args.integrator, "skintopo_version": __version__}
-    summary = _summary("measure", args, source=source, options=settings, units="um unless stated",
-                       wrinkle_totals=wrinkles.totals, evaluation=evaluations)
-    write_json(staging / "parameters.json", {"summary": summary, "parameters": rows})
-    with open(staging / "parameters.csv", "w", newline="", encoding="utf-8") as stream:
-        writer = csv.DictWriter(stream, fieldnames=["region", "name", "value", "unit", "reference"])
-        writer.writeheader()
-        writer.writerows(rows)
-    _write_wrinkle_files(staging, wrinkles, segmentation)
-    height.save(staging / "height.x3p")
-    if albedo is not None:  # kept so that `compare` can carry it to the baseline grid
-        np.save(staging / "albedo.npy", np.asarray(albedo, dtype=np.float32))
-    write_json(staging / "summary.json", summary)
-    report = build_report(title=title, height=height, albedo=albedo, parameters=measured["field"], fractal_results=fractal_results,
-                          wrinkles=wrinkles, evaluations=evaluations, settings=settings, cross_sections=cross_sections)
-    (staging / "report.html").write_text(report, encoding="utf-8")
-    return rows, wrinkles
-
-
 def cmd_measure(args):
+    from skintopo.pipeline import measure_acquisition, measure_height
+    from skintopo.results import write_measurement
+
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
     started = time.perf_counter()
-    height, albedo, source = _measured_height(args)
+    options = _measure_options(args)
+    path = Path(args.input)
+    if path.is_dir() and not (path / "height.x3p").is_file():
+        measurement = measure_acquisition(path, options, _band_progress(args), on_note=lambda note: _say(args, f"note: {note}"))
+    else:
+        source = {"input": path.name, "kind": "height map", "height": "as given"}
+        measurement = measure_height(load_height_input(path, args.pixel_um), options, albedo=load_albedo_beside(path), source=source)
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        rows, wrinkles = _write_measurements(staging, args, height, albedo, source, title=f"skintopo: {Path(args.input).name}")
+        write_measurement(staging, measurement, title=f"skintopo: {path.name}")
     if not args.quiet:
         print(f"{'region':<10} {'parameter':<24} {'value':>14} unit")
-        for row in rows:
+        for row in measurement.parameter_rows():
             value = "NaN" if row["value"] is None else f"{row['value']:14.5g}"
             print(f"{row['region']:<10} {row['name']:<24} {value:>14} {row['unit']}")
-        print(f"{wrinkles.totals['count']} wrinkle(s); report: {(Path(args.out) / 'report.html').resolve()}")
+        print(f"measured height: {measurement.source['height']}")
+        print(f"{measurement.wrinkles.totals['count']} wrinkle(s); report: {(Path(args.out) / 'report.html').resolve()}")
         print(f"wrote {Path(args.out).resolve()} in {time.perf_counter() - started:.1f} s")
     return 0
 
@@ -441,56 +360,18 @@ def cmd_synth(args):
     return 0
 
 
-def _load_albedo_beside(path):
-    """The albedo.npy a result folder holds (the output of measure), or None."""
-    path = Path(path)
-    if path.is_dir() and (path / "albedo.npy").is_file():
-        try:
-            return np.load(path / "albedo.npy")
-        except (OSError, ValueError) as error:
-            raise SkinTopoError(f"{path / 'albedo.npy'}: not a readable NumPy array ({error})") from None
-    return None
-
-
-def _load_height_input(path, pixel_um):
-    """A height map file, or a result folder holding height.x3p."""
-    from skintopo.heightmap import HeightMap
-
-    path = Path(path)
-    if path.is_dir():
-        if not (path / "height.x3p").is_file():
-            raise SkinTopoError(f"{path}: a folder given as a height map must hold height.x3p (the output of correct or measure)")
-        path = path / "height.x3p"
-    return HeightMap.load(path, pixel_um=pixel_um)
-
-
-def _write_wrinkle_files(folder, measures, segmentation):
-    """wrinkles.json (measures, totals, segmentation settings), wrinkles.csv and the id image."""
-    import csv
-    from dataclasses import asdict, fields
-
-    from skintopo.wrinkles import Wrinkle
-
-    data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
-    write_json(folder / "wrinkles.json", data)
-    with open(folder / "wrinkles.csv", "w", newline="", encoding="utf-8") as stream:
-        writer = csv.DictWriter(stream, fieldnames=[f.name for f in fields(Wrinkle)])
-        writer.writeheader()
-        writer.writerows(asdict(w) for w in measures.wrinkles)
-    write_label_image(folder / "wrinkles.png", measures.labels)
-
-
 def cmd_wrinkles(args):
     from skintopo.report import wrinkle_overlay_png
+    from skintopo.results import write_wrinkle_files
     from skintopo.segmentation import segment_wrinkles
     from skintopo.wrinkles import measure_wrinkles
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
-    height = _load_height_input(args.input, args.pixel_um)
-    segmentation = segment_wrinkles(height, **_segmentation_options(args))
+    height = load_height_input(args.input, args.pixel_um)
+    segmentation = segment_wrinkles(height, **_segmentation_options(args).as_kwargs())
     measures = measure_wrinkles(height, segmentation)
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        _write_wrinkle_files(staging, measures, segmentation)
+        write_wrinkle_files(staging, measures, segmentation)
         (staging / "wrinkles_overlay.png").write_bytes(base64.b64decode(wrinkle_overlay_png(height, measures)))
     if not args.quiet:
         if not measures.wrinkles:
@@ -505,52 +386,16 @@ def cmd_wrinkles(args):
 
 
 def cmd_compare(args):
-    import csv
-
-    from skintopo.compare import compare_visits, detection_limits
-    from skintopo.heightmap import HeightMap
-    from skintopo.texture import finite_or_none
+    from skintopo.pipeline import compare_results
+    from skintopo.results import write_comparison
 
     inputs = [args.baseline, args.follow_up] + ([args.repeat] if args.repeat else [])
     check_output_folder(args.out, overwrite=args.overwrite, inputs=inputs)
-    baseline = _load_height_input(args.baseline, args.pixel_um)
-    follow_up = _load_height_input(args.follow_up, args.pixel_um)
-    options = _segmentation_options(args)
-    albedos = _load_albedo_beside(args.baseline), _load_albedo_beside(args.follow_up)
-    comparison = compare_visits(baseline, follow_up, allow_scale=args.allow_scale, segmentation_options=options,
-                                baseline_albedo=albedos[0], follow_up_albedo=albedos[1])
-    limits = detection_limits(compare_visits(baseline, _load_height_input(args.repeat, args.pixel_um), segmentation_options=options)) if args.repeat else {}
-    rows = []
-    for name, record in comparison.texture.items():
-        rows.append({"parameter": name, **record, "detection_limit": limits.get(name)})
-    for name, record in comparison.totals.items():
-        rows.append({"parameter": f"wrinkles.{name}", **record, "detection_limit": None})
-    for wrinkle_id, record in comparison.wrinkles.items():
-        for name, change in record.items():
-            if isinstance(change, dict):
-                rows.append({"parameter": f"wrinkle{wrinkle_id}.{name}", **change, "detection_limit": limits.get(f"wrinkle{wrinkle_id}.{name}")})
-    for row in rows:
-        limit = row["detection_limit"]
-        row["detectable"] = None if limit is None else bool(abs(row["change"]) > limit)
-        for key in ("baseline", "follow_up", "change", "change_percent", "detection_limit"):
-            row[key] = finite_or_none(None if row[key] is None else float(row[key]))
-    registration = comparison.registration
-    summary = _summary("compare", args, baseline=Path(args.baseline).name, follow_up=Path(args.follow_up).name,
-                       repeat=Path(args.repeat).name if args.repeat else None,
-                       registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
-                                     "scale": registration.scale, "residual_misalignment_px": registration.residual_px,
-                                     "albedo_residual_misalignment_px": comparison.albedo_residual_px},
-                       wrinkle_matches={str(k): v["follow_up_id"] for k, v in comparison.wrinkles.items()},
-                       units="um, mm, mm3, %; change = follow-up - baseline")
+    result = compare_results(args.baseline, args.follow_up, repeat=args.repeat, pixel_um=args.pixel_um, allow_scale=args.allow_scale,
+                             segmentation=_segmentation_options(args))
+    comparison, registration = result.comparison, result.comparison.registration
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=inputs) as staging:
-        HeightMap(comparison.difference, baseline.spacing).save(staging / "difference.x3p")
-        if comparison.aligned_albedo is not None:
-            np.save(staging / "follow_up_albedo_registered.npy", comparison.aligned_albedo.astype(np.float32))
-        write_json(staging / "changes.json", {"summary": summary, "changes": rows})
-        with open(staging / "changes.csv", "w", newline="", encoding="utf-8") as stream:
-            writer = csv.DictWriter(stream, fieldnames=["parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable"])
-            writer.writeheader()
-            writer.writerows(rows)
+        write_comparison(staging, comparison, result.rows, result.summary, result.spacing)
     if not args.quiet:
         print(f"registration: shift ({registration.shift_px[0]:+.2f}, {registration.shift_px[1]:+.2f}) px, rotation {registration.rotation_deg:+.3f} deg, "
               f"residual misalignment {registration.residual_px:.3f} px")
@@ -571,28 +416,38 @@ def cmd_compare(args):
 def cmd_batch(args):
     from tqdm import tqdm
 
-    from skintopo.batch import read_study, run_study
+    from skintopo.batch import BatchInterrupted, read_study, run_study
 
     total = len(read_study(args.study))  # validates before anything runs
-    bar = tqdm(total=total, desc="batch", unit="item", file=sys.stderr, disable=args.quiet)
+    bar = tqdm(desc="batch", unit="item", file=sys.stderr, disable=args.quiet)  # total grows with the compares
 
-    def progress(item, status):
+    def progress(item, step, status):
         bar.update(1)
-        bar.set_postfix_str(f"{item.subject} {item.region} {item.visit}: {status}")
+        bar.set_postfix_str(f"{item.subject} {item.region} {item.visit} {step}: {status}")
 
-    counts, tables = run_study(args.study, args.out, workers=args.workers, scheduler=args.scheduler, progress=progress)
+    try:
+        counts, _, failures = run_study(args.study, args.out, options=_measure_options(args), workers=args.workers, scheduler=args.scheduler,
+                                        scheduler_timeout=args.scheduler_timeout, force=args.force, progress=progress)
+    except BatchInterrupted as stop:
+        bar.close()
+        c = stop.counts
+        print(f"skintopo batch: interrupted: {c['computed']} item(s) finished this run and are complete, {c['skipped']} were already done, "
+              f"unfinished items left nothing; run the same command again to finish (tables not updated)", file=sys.stderr)
+        return 128 + int(stop.signal_number)
     bar.close()
-    _say(args, f"computed {counts['computed']}, skipped (already done) {counts['skipped']}, failed {counts['failed']}; "
-               f"tables in {Path(args.out).resolve()} (results.csv, results.parquet, changes.csv, failures.csv, summary.html)")
-    return 0
+    for failure in failures:
+        print(f"failed: {failure['subject']} {failure['visit']} {failure['region']} ({failure['step']}): "
+              f"{failure['error'].splitlines()[0]}", file=sys.stderr)
+    _say(args, f"{total} acquisition(s): computed {counts['computed']}, skipped (already done) {counts['skipped']}, failed {counts['failed']}; "
+               f"tables in {Path(args.out).resolve()} (results.csv, changes.csv, statistics.csv, summary.html)")
+    return 1 if failures else 0
 
 
 def cmd_calibrate_lights(args):
     from skintopo.calibration import calibrate_lights
 
+    check_output_file(args.out, overwrite=args.overwrite, inputs=[*args.images, *([args.mask] if args.mask else [])])
     output = Path(args.out)
-    if output.exists() and not args.overwrite:
-        raise SkinTopoError(f"{output}: exists; use --overwrite to replace it")
     result = calibrate_lights(args.images, mask=args.mask, method="matte" if args.matte else "chrome")
     result["note"] = "copy each 'light' (and 'intensity') into the matching image entries of acquisition.json"
     write_json_atomic(output, result)
@@ -621,6 +476,21 @@ def _add_segmentation_options(parser):
                         help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
 
 
+def _add_measure_options(parser):
+    """Every option of ``MeasureOptions``: reconstruction, height method, texture, regions, segmentation."""
+    _add_reconstruction_options(parser)
+    parser.add_argument("--method", choices=HEIGHT_METHODS, default=HeightOptions().method,
+                        help="height measured from an acquisition: auto (default: the paper's correction when red, green and blue "
+                        "are present, else white, else the only band), paper, feathered, or one band")
+    parser.add_argument("--level", type=_non_negative_int, default=TextureOptions().level_order,
+                        help="order of the least-squares form removed first (default 1: plane)")
+    parser.add_argument("--p", type=float, default=DEFAULT_P, help=f"material ratio p of Vmp/Vmc/Vvc (default {DEFAULT_P:g} %%)")
+    parser.add_argument("--q", type=float, default=DEFAULT_Q, help=f"material ratio q of Vmc/Vvc/Vvv (default {DEFAULT_Q:g} %%)")
+    parser.add_argument("--region", type=_parse_region, action="append", default=[],
+                        help="extra region NAME=x0,y0,x1,y1 in um from the top-left corner (pixel edges; repeatable)")
+    _add_segmentation_options(parser)
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="skintopo", description="3D skin topography by multispectral photometric stereo.")
     parser.add_argument("--version", action="version", version=f"skintopo {__version__}")
@@ -631,16 +501,14 @@ def build_parser():
     reconstruct.add_argument("-o", "--out", type=Path, required=True, help="output folder (created; must be empty or new)")
     reconstruct.add_argument("--band", choices=[*BANDS, SPECULAR_FREE, "all"], default="all",
                              help="band to process (default all present); specular-free = SUV projection of red, green, blue")
-    reconstruct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
-        help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
     _add_output_switches(reconstruct)
     reconstruct.set_defaults(handler=cmd_reconstruct)
 
     correct = commands.add_parser("correct", help="the paper's method: per-band reconstruction, wrinkle segmentation, spectral correction")
     _add_acquisition_options(correct)
     correct.add_argument("-o", "--out", type=Path, required=True, help="output folder")
-    correct.add_argument("--method", choices=["paper", "feathered"], default="paper", help="correction variant (default paper)")
-    correct.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR)
+    correct.add_argument("--method", choices=CORRECTION_METHODS, default=DEFAULT_CORRECTION_METHOD,
+                         help=f"correction variant (default {DEFAULT_CORRECTION_METHOD})")
     _add_segmentation_options(correct)
     _add_output_switches(correct)
     correct.set_defaults(handler=cmd_correct)
@@ -667,16 +535,9 @@ def build_parser():
     measure = commands.add_parser("measure", help="surface texture (ISO 25178-2), volume and fractal parameters of a height map or acquisition")
     measure.add_argument("input", type=Path, help="height map (.x3p, .npy) or acquisition folder")
     measure.add_argument("-o", "--out", type=Path, required=True, help="output folder (parameters.json, parameters.csv)")
-    measure.add_argument("--pixel-um", type=_positive_float, help="pixel size for .npy maps and DiLiGenT folders")
-    measure.add_argument("--level", type=int, default=1, help="order of the least-squares form removed first (default 1: plane)")
-    measure.add_argument("--p", type=float, default=10.0, help="material ratio p of Vmp/Vmc/Vvc (default 10 %%)")
-    measure.add_argument("--q", type=float, default=80.0, help="material ratio q of Vmc/Vvc/Vvv (default 80 %%)")
-    measure.add_argument("--region", type=_parse_region, action="append", default=[], help="extra region NAME=x0,y0,x1,y1 in um (repeatable)")
+    _add_measure_options(measure)
     _add_output_switches(measure)
-    measure.add_argument("--solver", choices=SOLVERS, default="least-squares", help="photometric stereo solver (acquisitions)")
-    measure.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR, help="normal integration (acquisitions)")
-    _add_segmentation_options(measure)
-    measure.set_defaults(handler=cmd_measure, saturation=DEFAULT_SATURATION, shadow_fraction=DEFAULT_SHADOW_FRACTION)
+    measure.set_defaults(handler=cmd_measure)
 
     wrinkles = commands.add_parser("wrinkles", help="per-wrinkle measures: length, depth, width, volume, severity")
     wrinkles.add_argument("input", type=Path, help="height map (.x3p, .npy) or an output folder holding height.x3p")
@@ -697,12 +558,17 @@ def build_parser():
     _add_output_switches(compare)
     compare.set_defaults(handler=cmd_compare)
 
-    batch = commands.add_parser("batch", help="a whole study: measure every acquisition, compare follow-ups, one table")
-    batch.add_argument("study", type=Path, help="study CSV: subject, visit, region, acquisition[, baseline]")
-    batch.add_argument("-o", "--out", type=Path, required=True, help="study output folder (reused: finished items are skipped)")
-    batch.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    batch = commands.add_parser("batch", help="a whole study: measure every acquisition, compare follow-ups, statistics, one table")
+    batch.add_argument("study", type=Path, help="study CSV: subject, visit, region, acquisition[, baseline][, repeat]")
+    batch.add_argument("-o", "--out", type=Path, required=True,
+                       help="study output folder, new or from an earlier run of the same study (finished items are skipped)")
+    batch.add_argument("--workers", type=_positive_int, default=2, help="local worker processes (default 2)")
     batch.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:8786) to run on instead")
-    batch.add_argument("-q", "--quiet", action="store_true")
+    batch.add_argument("--scheduler-timeout", type=_positive_float, default=DEFAULT_SCHEDULER_TIMEOUT_S,
+                       help=f"seconds to wait for the scheduler (default {DEFAULT_SCHEDULER_TIMEOUT_S:g})")
+    batch.add_argument("--force", action="store_true", help="recompute every item, even those whose inputs and options are unchanged")
+    _add_measure_options(batch)
+    batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary line (failures still go to stderr)")
     batch.set_defaults(handler=cmd_batch)
 
     calibrate = commands.add_parser("calibrate", help="device calibration")

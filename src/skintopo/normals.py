@@ -159,10 +159,11 @@ def _reject_outliers(intensity, usable, lights, g, count, *, threshold, max_iter
 
 
 SOLVERS = ("least-squares", "robust")
+DEFAULT_SOLVER = "least-squares"
 DEFAULT_ROBUST_THRESHOLD = 0.02
 
 
-def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION, solver="least-squares",
+def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION, solver=DEFAULT_SOLVER,
                        exclude=None, robust_threshold=DEFAULT_ROBUST_THRESHOLD, max_iterations=12):
     """Per-pixel Lambertian least squares, n = (S^T S)^-1 S^T I, optionally robust.
 

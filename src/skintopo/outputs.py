@@ -33,6 +33,23 @@ def check_output_folder(out, *, overwrite=False, inputs=()):
             raise SkinTopoError(f"{out}: folder is not empty; use --overwrite to replace it")
 
 
+def check_output_file(out, *, overwrite=False, inputs=()):
+    """Refuse an output file that would overwrite an input or something not asked for.
+
+    ``out`` may never be one of ``inputs`` nor lie inside an input folder (with or without
+    ``overwrite``); an existing file is replaced only with ``overwrite``; a folder never.
+    """
+    out = Path(out).resolve()
+    for source in inputs:
+        source = Path(source).resolve()
+        if out == source or out.is_relative_to(source):
+            raise SkinTopoError(f"{out}: the output would overwrite or lie inside the input {source}; choose another -o")
+    if out.is_dir():
+        raise SkinTopoError(f"{out}: is a folder; give a file name to write")
+    if out.exists() and not overwrite:
+        raise SkinTopoError(f"{out}: exists; use --overwrite to replace it")
+
+
 @contextmanager
 def staged_output_folder(out, *, overwrite=False, inputs=()):
     """Yield a temporary folder beside ``out``; on success it replaces ``out`` in one rename.

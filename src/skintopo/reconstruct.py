@@ -15,7 +15,7 @@ from skintopo.acquisition import Acquisition
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.errors import SkinTopoError
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, PhotometricStereoResult, photometric_stereo, specular_free_images
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, PhotometricStereoResult, photometric_stereo, specular_free_images
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,7 +48,7 @@ def band_images(acquisition: Acquisition, band):
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                     solver="least-squares"):
+                     solver=DEFAULT_SOLVER):
     """Photometric stereo and integration for one band of ``acquisition``.
 
     The height map keeps only pixels inside the acquisition mask with a valid normal.

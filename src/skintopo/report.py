@@ -217,14 +217,18 @@ window.addEventListener('mousemove', e => { if (!drag) return; yaw = drag[2] + (
 draw3d();
 """
 
-_STYLE = """
+_BASE_STYLE = """
 body { font-family: sans-serif; margin: 2em; color: #222; max-width: 1100px; }
 h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 2em; }
 table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
 td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; } th { background: #f3f3f3; }
 td:first-child { text-align: left; } .missing { color: #999; font-style: italic; }
-img { max-width: 100%; } .pair { display: flex; gap: 1em; flex-wrap: wrap; } .pair img { max-width: 48%; }
-canvas { border: 1px solid #ddd; } .note { color: #555; font-size: 0.9em; }
+img { max-width: 100%; } .note { color: #555; font-size: 0.9em; }
+@media (max-width: 600px) { body { margin: 0.5em; } }
+"""
+_STYLE = """
+.pair { display: flex; gap: 1em; flex-wrap: wrap; } .pair img { max-width: 48%; }
+canvas { border: 1px solid #ddd; max-width: 100%; }
 """
 
 
@@ -296,10 +300,17 @@ def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(
                                  "mid": float(np.median(finite_z)) if finite_z.size else 0.0})
     # JSON inside <script type=application/json>: escape '<' so no '</script>' can close it.
     payload = payload.replace("<", "\\u003c")
+    return html_page(title, "".join(sections) + f"<script id=grid type='application/json'>{payload}</script>", style=_STYLE, script=_SCRIPT)
+
+
+def html_page(title, body, *, style="", script=None):
+    """One self-contained HTML page: a Content-Security-Policy that lets it load nothing
+    from anywhere (images only as data: URIs, inline style and, when given, inline script),
+    so a patient's report never contacts a server."""
+    policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'" + ("; script-src 'unsafe-inline'" if script else "")
     return (
-        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
-        "<meta http-equiv='Content-Security-Policy' content=\"default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'\">"
-        f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
-        + "".join(sections)
-        + f"<script id=grid type='application/json'>{payload}</script><script>{_SCRIPT}</script></body></html>"
+        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8><meta name=viewport content='width=device-width, initial-scale=1'>"
+        f"<meta http-equiv='Content-Security-Policy' content=\"{policy}\">"
+        f"<title>{html.escape(title)}</title><style>{_BASE_STYLE}{style}</style></head><body>"
+        + body + (f"<script>{script}</script>" if script else "") + "</body></html>"
     )

@@ -1,0 +1,323 @@
+"""The measurement as one pipeline, with its options kept beside its result.
+
+acquisition -> normals per band -> height (a band, or the spectral correction) -> texture,
+fractal and wrinkle measures. The command line, the batch, the demo and a notebook all call
+these functions; each stage also stays usable alone.
+
+Options are frozen dataclasses holding the library's defaults, so a result records exactly
+the settings that made it (``MeasureOptions.as_dict``), and a study can fingerprint them:
+
+>>> options = MeasureOptions(height=HeightOptions(method="blue"))    # doctest: +SKIP
+>>> measurement = measure_acquisition("capture/", options)          # doctest: +SKIP
+>>> measurement.parameter_rows()[0]                                  # doctest: +SKIP
+{'region': 'field', 'name': 'Sq', 'value': 31.2, 'unit': 'um', ...}
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.acquisition import BANDS, DEFAULT_SATURATION, load_acquisition
+from skintopo.correction import METHODS as CORRECTION_METHODS
+from skintopo.correction import REQUIRED_BANDS, CorrectionResult, spectral_correction
+from skintopo.errors import SkinTopoError
+from skintopo.height import DEFAULT_INTEGRATOR
+from skintopo.heightmap import HeightMap
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
+from skintopo.reconstruct import SPECULAR_FREE, reconstruct_band
+from skintopo.segmentation import (
+    DEFAULT_CUTOFF_UM,
+    DEFAULT_MIN_DEPTH_UM,
+    DEFAULT_MIN_LENGTH_UM,
+    DEFAULT_SHORT_CUTOFF_UM,
+    WrinkleSegmentation,
+    segment_wrinkles,
+)
+from skintopo.texture import DEFAULT_P, DEFAULT_Q, finite_or_none, measure_texture
+from skintopo.wrinkles import WrinkleMeasures, measure_wrinkles
+
+AUTO_HEIGHT = "auto"
+HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, *BANDS, SPECULAR_FREE)
+
+
+@dataclass(frozen=True)
+class ReconstructionOptions:
+    """How an acquisition becomes normals and heights (see :func:`skintopo.reconstruct.reconstruct_band`).
+
+    ``pixel_um`` is used only for folders without a pixel size (DiLiGenT), where it defaults to 1.
+    """
+
+    pixel_um: float | None = None
+    saturation: float = DEFAULT_SATURATION
+    shadow_fraction: float = DEFAULT_SHADOW_FRACTION
+    solver: str = DEFAULT_SOLVER
+    integrator: str = DEFAULT_INTEGRATOR
+
+
+@dataclass(frozen=True)
+class HeightOptions:
+    """Which height map is measured.
+
+    ``method``: ``"auto"`` (the paper's spectral correction when red, green and blue are
+    present, else the white band, else the only band), ``"paper"`` or ``"feathered"`` (the
+    spectral correction, :mod:`skintopo.correction`), or one band: ``red``, ``green``,
+    ``blue``, ``white``, ``specular-free``.
+    """
+
+    method: str = AUTO_HEIGHT
+
+    def __post_init__(self):
+        if self.method not in HEIGHT_METHODS:
+            raise SkinTopoError(f"unknown height method {self.method!r}; choose from {list(HEIGHT_METHODS)}")
+
+
+@dataclass(frozen=True)
+class SegmentationOptions:
+    """Wrinkle segmentation settings (:func:`skintopo.segmentation.segment_wrinkles`), micrometres."""
+
+    cutoff_um: float = DEFAULT_CUTOFF_UM
+    short_cutoff_um: float = DEFAULT_SHORT_CUTOFF_UM
+    min_depth_um: float = DEFAULT_MIN_DEPTH_UM
+    min_length_um: float = DEFAULT_MIN_LENGTH_UM
+
+    def as_kwargs(self):
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class TextureOptions:
+    """Surface texture settings (:func:`skintopo.texture.measure_texture`): the order of the
+    least-squares form removed first and the material ratios p, q (%) of the volume parameters."""
+
+    level_order: int | None = 1
+    p: float = DEFAULT_P
+    q: float = DEFAULT_Q
+
+    def __post_init__(self):
+        if self.level_order is not None and self.level_order < 0:
+            raise SkinTopoError(f"the form removal order must be 0 or more (1 = plane), got {self.level_order}")
+        if not (0 <= self.p < self.q <= 100):
+            raise SkinTopoError(f"material ratios must satisfy 0 <= p < q <= 100 (%), got p = {self.p:g}, q = {self.q:g}")
+
+
+@dataclass(frozen=True)
+class MeasureOptions:
+    """Every option that changes a number of ``skintopo measure``.
+
+    ``regions``: extra rectangles ``((name, (x0, y0, x1, y1)), ...)`` in micrometres, pixel
+    edges from the map's top-left corner, measured beside the whole field.
+    """
+
+    reconstruction: ReconstructionOptions = field(default_factory=ReconstructionOptions)
+    height: HeightOptions = field(default_factory=HeightOptions)
+    segmentation: SegmentationOptions = field(default_factory=SegmentationOptions)
+    texture: TextureOptions = field(default_factory=TextureOptions)
+    regions: tuple = ()
+
+    def as_dict(self):
+        """Plain JSON-ready dict (the form stored in results and study fingerprints)."""
+        data = asdict(self)
+        data["regions"] = [[name, list(box)] for name, box in self.regions]
+        return data
+
+    @classmethod
+    def from_dict(cls, data):
+        """Inverse of :meth:`as_dict`."""
+        parts = {f.name: f.type for f in fields(cls)}
+        kinds = {"reconstruction": ReconstructionOptions, "height": HeightOptions, "segmentation": SegmentationOptions,
+                 "texture": TextureOptions}
+        unknown = set(data) - set(parts)
+        if unknown:
+            raise SkinTopoError(f"unknown measure options {sorted(unknown)}")
+        values = {name: kinds[name](**data[name]) for name in kinds if name in data}
+        values["regions"] = tuple((name, tuple(box)) for name, box in data.get("regions", ()))
+        return cls(**values)
+
+
+def crop_region(height: HeightMap, box, name):
+    """The part of ``height`` inside ``box = (x0, y0, x1, y1)`` micrometres, measured as pixel
+    edges from the map's top-left corner (the map spans columns x spacing by rows x spacing)."""
+    dy, dx = height.spacing
+    x0, y0, x1, y1 = box
+    c0, c1 = int(round(x0 / dx)), int(round(x1 / dx))
+    r0, r1 = int(round(y0 / dy)), int(round(y1 / dy))
+    rows, columns = height.shape
+    if c0 < 0 or r0 < 0 or c1 > columns or r1 > rows:
+        raise SkinTopoError(f"region {name!r} ({box} um) lies outside the map ({columns * dx:g} x {rows * dy:g} um)")
+    if c1 - c0 < 2 or r1 - r0 < 2:
+        raise SkinTopoError(f"region {name!r} ({box} um) is smaller than 2 x 2 pixels of {dx:g} x {dy:g} um")
+    return HeightMap(height.z[r0:r1, c0:c1], height.spacing, height.mask[r0:r1, c0:c1])
+
+
+def reconstruct_bands(acquisition, options: ReconstructionOptions = ReconstructionOptions(), bands=None, progress=iter):
+    """Normals, albedo and height of each band (default: every band present).
+
+    ``progress`` wraps the iteration over bands (e.g. a tqdm bar)."""
+    return {
+        band: reconstruct_band(acquisition, band, integrator=options.integrator, shadow_fraction=options.shadow_fraction,
+                               solver=options.solver)
+        for band in progress(list(bands or acquisition.bands))
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class AcquisitionHeight:
+    """The height map chosen by :class:`HeightOptions`, with what made it.
+
+    ``description`` names it (e.g. ``"spectral correction (paper)"``, ``"blue band"``);
+    ``albedo`` is the red band's (else the first band's) albedo on the same grid.
+    """
+
+    height: HeightMap
+    albedo: np.ndarray
+    description: str
+    bands: dict  # band -> BandReconstruction
+    correction: CorrectionResult | None
+
+
+def _resolved_method(method, present):
+    if method != AUTO_HEIGHT:
+        return method
+    if all(b in present for b in REQUIRED_BANDS):
+        return "paper"
+    return "white" if "white" in present else next(iter(present))
+
+
+def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), progress=iter) -> AcquisitionHeight:
+    """Reconstruct the bands ``options.height`` needs and return the height to measure."""
+    method = _resolved_method(options.height.method, acquisition.bands)
+    spectral = method in CORRECTION_METHODS
+    needed = REQUIRED_BANDS if spectral or method == SPECULAR_FREE else (method,)
+    missing = [b for b in needed if b not in acquisition.bands]
+    if missing:
+        raise SkinTopoError(f"{acquisition.source}: the height method {method!r} needs the band(s) {missing}; "
+                            f"the acquisition has {sorted(acquisition.bands)}")
+    # the spectral correction reports every band beside its own height (``skintopo correct``)
+    wanted = list(acquisition.bands) if spectral or options.height.method == AUTO_HEIGHT else [method]
+    results = reconstruct_bands(acquisition, options.reconstruction, wanted, progress)
+    albedo_band = "red" if "red" in results else next(iter(results))
+    albedo = results[albedo_band].stereo.albedo
+    if spectral:
+        correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um, method=method,
+                                         mask=acquisition.mask, integrator=options.reconstruction.integrator,
+                                         **options.segmentation.as_kwargs())
+        return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
+    return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement:
+    """Everything ``skintopo measure`` computes, with the options and source that made it.
+
+    ``texture`` maps a region name (``"field"`` first) to its list of
+    :class:`skintopo.texture.Parameter`; ``fractal_results`` holds the whole field's
+    estimators with their log-log points.
+    """
+
+    height: HeightMap
+    albedo: np.ndarray | None
+    source: dict
+    options: MeasureOptions
+    texture: dict
+    fractal_results: tuple
+    segmentation: WrinkleSegmentation
+    wrinkles: WrinkleMeasures
+
+    def parameter_rows(self):
+        """One dict per (region, parameter): region, name, value (None for NaN), unit, reference."""
+        return [
+            {"region": region, "name": p.name, "value": finite_or_none(p.value), "unit": p.unit, "reference": p.reference}
+            for region, parameters in self.texture.items()
+            for p in parameters
+        ]
+
+
+def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None) -> Measurement:
+    """Texture and fractal parameters (whole field and each region) and wrinkle measures of ``height``."""
+    regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
+    fractal_results = []
+    texture = {
+        name: measure_texture(region, level_order=options.texture.level_order, p=options.texture.p, q=options.texture.q,
+                              fractal_results=fractal_results if name == "field" else None)
+        for name, region in regions.items()
+    }
+    segmentation = segment_wrinkles(height, **options.segmentation.as_kwargs())
+    wrinkles = measure_wrinkles(height, segmentation)
+    return Measurement(height, albedo, dict(source or {}), options, texture, tuple(fractal_results), segmentation, wrinkles)
+
+
+def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None) -> Measurement:
+    """Load an acquisition folder, make the height ``options.height`` asks for and measure it.
+
+    ``on_note`` receives notes meant for the user (e.g. an assumed pixel size)."""
+    acquisition = load_acquisition(path, pixel_um=options.reconstruction.pixel_um, saturation=options.reconstruction.saturation)
+    if acquisition.pixel_um_assumed and on_note is not None:
+        on_note(f"{Path(path).name} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
+    made = acquisition_height(acquisition, options, progress)
+    source = {"input": acquisition.source.name, "kind": "acquisition", "acquisition": acquisition_summary(acquisition),
+              "height": made.description}
+    return measure_height(made.height, options, albedo=made.albedo, source=source)
+
+
+def acquisition_summary(acquisition):
+    """What identifies an acquisition in a result without its path (which may name the
+    person): the folder's name, a SHA-256 of its manifest (or DiLiGenT lists), layout, size."""
+    import hashlib
+
+    from skintopo.acquisition import MANIFEST_NAME
+
+    digest = hashlib.sha256()
+    for name in (MANIFEST_NAME, "filenames.txt", "light_directions.txt", "light_intensities.txt"):
+        if (acquisition.source / name).is_file():
+            digest.update((acquisition.source / name).read_bytes())
+    return {
+        "name": acquisition.source.name,
+        "sha256": digest.hexdigest(),
+        "layout": acquisition.layout,
+        "shape": list(acquisition.shape),
+        "pixel_um": acquisition.pixel_um,
+        "pixel_um_assumed": acquisition.pixel_um_assumed,
+        "bands": {b: len(acquisition.bands[b].files) for b in acquisition.bands},
+    }
+
+
+@dataclass(frozen=True, eq=False)
+class CompareResult:
+    """Output of :func:`compare_results`: the comparison, its rows (see
+    :func:`skintopo.results.comparison_rows`), a summary and the baseline's pixel spacing."""
+
+    comparison: object
+    rows: list
+    summary: dict
+    spacing: tuple
+
+
+def compare_results(baseline, follow_up, *, repeat=None, pixel_um=None, allow_scale=False,
+                    segmentation: SegmentationOptions = SegmentationOptions()) -> CompareResult:
+    """Compare two visits given as height files or result folders (see :mod:`skintopo.compare`).
+
+    ``repeat``, a second capture of the unchanged baseline skin, gives detection limits. The
+    albedo of result folders is carried by the same registration."""
+    from skintopo.compare import compare_visits, detection_limits
+    from skintopo.results import comparison_rows, load_albedo_beside, load_height_input, run_header
+
+    before, after = load_height_input(baseline, pixel_um), load_height_input(follow_up, pixel_um)
+    options = segmentation.as_kwargs()
+    comparison = compare_visits(before, after, allow_scale=allow_scale, segmentation_options=options,
+                                baseline_albedo=load_albedo_beside(baseline), follow_up_albedo=load_albedo_beside(follow_up))
+    limits = {}
+    if repeat is not None:
+        limits = detection_limits(compare_visits(before, load_height_input(repeat, pixel_um), segmentation_options=options))
+    registration = comparison.registration
+    summary = run_header("compare", baseline=Path(baseline).name, follow_up=Path(follow_up).name,
+                         repeat=Path(repeat).name if repeat is not None else None,
+                         options={"allow_scale": allow_scale, "segmentation": options},
+                         registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
+                                       "scale": registration.scale, "residual_misalignment_px": registration.residual_px,
+                                       "albedo_residual_misalignment_px": comparison.albedo_residual_px},
+                         wrinkle_matches={str(k): v["follow_up_id"] for k, v in comparison.wrinkles.items()},
+                         units="um, mm, mm3, %; change = follow-up - baseline")
+    return CompareResult(comparison, comparison_rows(comparison, limits), summary, before.spacing)

@@ -1,0 +1,167 @@
+"""The result folder: what ``measure`` and ``compare`` write, and reading it back.
+
+A measure result folder holds ``parameters.json`` / ``parameters.csv`` (every texture and
+fractal parameter per region, with units and the standard's clause), ``wrinkles.json`` /
+``wrinkles.csv`` / ``wrinkles.png`` (per-wrinkle measures and their label image),
+``height.x3p`` (the measured height, metres inside the file per ISO 25178-72),
+``albedo.npy`` (when measured from an acquisition), ``summary.json`` (software version,
+source, options) and ``report.html``. A compare folder holds ``changes.json`` /
+``changes.csv``, ``difference.x3p`` and, when both visits had one, the registered albedo.
+This module is the only one that knows these names; callers write into a staged folder
+(:func:`skintopo.outputs.staged_output_folder`) so a folder appears complete or not at all.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+from dataclasses import asdict, fields
+from pathlib import Path
+
+import numpy as np
+
+from skintopo import __version__
+from skintopo.errors import SkinTopoError
+from skintopo.outputs import write_json, write_label_image
+from skintopo.texture import finite_or_none
+
+PARAMETER_COLUMNS = ("region", "name", "value", "unit", "reference")
+CHANGE_COLUMNS = ("parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable")
+WRINKLE_TOTAL_UNITS = {"count": "", "total_length_mm": "mm", "mean_depth_um": "um", "area_fraction": ""}
+CHANGED_WRINKLE_MEASURES = ("length_mm", "mean_depth_um", "max_depth_um", "mean_width_mm", "volume_mm3", "severity")
+
+
+def run_header(command, **extra):
+    """The first entries of every summary: software version, command, Python version."""
+    return {"skintopo_version": __version__, "command": command, "python": platform.python_version(), **extra}
+
+
+def _write_csv(path, columns, rows):
+    with open(path, "w", newline="", encoding="utf-8") as stream:
+        writer = csv.DictWriter(stream, fieldnames=list(columns))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def write_wrinkle_files(folder, measures, segmentation):
+    """wrinkles.json (measures, totals, segmentation settings), wrinkles.csv and the id image."""
+    from skintopo.wrinkles import Wrinkle
+
+    folder = Path(folder)
+    data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
+    write_json(folder / "wrinkles.json", data)
+    _write_csv(folder / "wrinkles.csv", [f.name for f in fields(Wrinkle)], (asdict(w) for w in measures.wrinkles))
+    write_label_image(folder / "wrinkles.png", measures.labels)
+
+
+def measurement_settings(measurement):
+    """The settings recorded with a measurement (and shown in its report)."""
+    return {"source": measurement.source, "options": measurement.options.as_dict(),
+            "segmentation": measurement.segmentation.parameters, "skintopo_version": __version__}
+
+
+def write_measurement(folder, measurement, *, title, command="measure", evaluations=None, cross_sections=()):
+    """Write a :class:`skintopo.pipeline.Measurement` into ``folder`` (which must exist)."""
+    from skintopo.report import build_report
+
+    folder = Path(folder)
+    rows = measurement.parameter_rows()
+    settings = measurement_settings(measurement)
+    summary = run_header(command, source=measurement.source, options=settings["options"], segmentation=settings["segmentation"],
+                         units="um unless stated", wrinkle_totals=measurement.wrinkles.totals, evaluation=evaluations)
+    write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
+    _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
+    write_wrinkle_files(folder, measurement.wrinkles, measurement.segmentation)
+    measurement.height.save(folder / "height.x3p")
+    if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
+        np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
+    write_json(folder / "summary.json", summary)
+    report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
+                          fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles, evaluations=evaluations,
+                          settings=settings, cross_sections=cross_sections)
+    (folder / "report.html").write_text(report, encoding="utf-8")
+    return summary
+
+
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise SkinTopoError(f"{path}: not a readable skintopo result ({error})") from None
+
+
+def read_measurement_values(folder):
+    """({name: value}, {name: unit}) of a measure result folder: field parameters by name,
+    region parameters as ``region.name``, wrinkle totals as ``wrinkles.name``."""
+    folder = Path(folder)
+    values, units = {}, {}
+    for p in _read_json(folder / "parameters.json")["parameters"]:
+        name = p["name"] if p["region"] == "field" else f"{p['region']}.{p['name']}"
+        values[name], units[name] = p["value"], p["unit"]
+    totals = _read_json(folder / "wrinkles.json")["totals"]
+    for name, unit in WRINKLE_TOTAL_UNITS.items():
+        values[f"wrinkles.{name}"], units[f"wrinkles.{name}"] = totals[name], unit
+    return values, units
+
+
+def comparison_rows(comparison, limits=None):
+    """One row per changed quantity of a :class:`skintopo.compare.Comparison`: texture
+    parameters, wrinkle totals (``wrinkles.name``) and matched wrinkles (``wrinkleN.measure``),
+    with the detection limit from a repeat pair where one was given."""
+    limits = limits or {}
+    rows = [{"parameter": name, **record, "detection_limit": limits.get(name)} for name, record in comparison.texture.items()]
+    rows += [{"parameter": f"wrinkles.{name}", **record, "detection_limit": None} for name, record in comparison.totals.items()]
+    for wrinkle_id, record in comparison.wrinkles.items():
+        for name, change in record.items():
+            if isinstance(change, dict):
+                rows.append({"parameter": f"wrinkle{wrinkle_id}.{name}", **change, "detection_limit": limits.get(f"wrinkle{wrinkle_id}.{name}")})
+    for row in rows:
+        limit = row["detection_limit"]
+        row["detectable"] = None if limit is None else bool(abs(row["change"]) > limit)
+        for key in ("baseline", "follow_up", "change", "change_percent", "detection_limit"):
+            row[key] = finite_or_none(None if row[key] is None else float(row[key]))
+    return rows
+
+
+def write_comparison(folder, comparison, rows, summary, spacing):
+    """difference.x3p (on the baseline grid of ``spacing`` um), the registered albedo (when
+    there is one), changes.json and changes.csv."""
+    from skintopo.heightmap import HeightMap
+
+    folder = Path(folder)
+    HeightMap(comparison.difference, spacing).save(folder / "difference.x3p")
+    if comparison.aligned_albedo is not None:
+        np.save(folder / "follow_up_albedo_registered.npy", comparison.aligned_albedo.astype(np.float32))
+    write_json(folder / "changes.json", {"summary": summary, "changes": rows})
+    _write_csv(folder / "changes.csv", CHANGE_COLUMNS, rows)
+
+
+def read_change_rows(folder):
+    """The rows of a compare result folder's changes.json."""
+    return _read_json(Path(folder) / "changes.json")["changes"]
+
+
+def load_height_input(path, pixel_um=None):
+    """A height map file, or a result folder holding height.x3p (micrometres)."""
+    from skintopo.heightmap import HeightMap
+
+    path = Path(path)
+    if path.is_dir():
+        if not (path / "height.x3p").is_file():
+            raise SkinTopoError(f"{path}: a folder given as a height map must hold height.x3p (the output of correct or measure)")
+        path = path / "height.x3p"
+    elif not path.exists():
+        raise SkinTopoError(f"{path}: no such height map or folder")
+    return HeightMap.load(path, pixel_um=pixel_um)
+
+
+def load_albedo_beside(path):
+    """The albedo.npy a result folder holds (the output of measure), or None."""
+    path = Path(path)
+    if path.is_dir() and (path / "albedo.npy").is_file():
+        try:
+            return np.load(path / "albedo.npy")
+        except (OSError, ValueError) as error:
+            raise SkinTopoError(f"{path / 'albedo.npy'}: not a readable NumPy array ({error})") from None
+    return None
