@@ -1,56 +1,128 @@
-"""Study-scale batch: local processes and a Dask LocalCluster, failures, interruption."""
+"""Study-scale batch: local processes and Dask, failures, signals, resumption, fingerprints,
+bad inputs, trial statistics and the summary page."""
 
+import dataclasses
+import fcntl
+import json
 import os
+import shutil
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
+from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
+import skintopo.batch
 from skintopo.batch import read_study, run_study
+from skintopo.cli import main
 from skintopo.errors import SkinTopoError
+from skintopo.pipeline import MeasureOptions, SegmentationOptions
+from skintopo.study import study_statistics
 from skintopo.synth import Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CLI = [sys.executable, "-m", "skintopo.cli"]
+
+
+def write_study(root, subjects, *, size_px=96, depth_factors=(1.0, 0.9, 0.8), repeat_first=False):
+    """``subjects`` x visits of simulated skin (wrinkles made shallower at each visit, the
+    field shifted a little), written as acquisitions beside ``study.csv``."""
+    root.mkdir(parents=True, exist_ok=True)
+    rows = ["subject,visit,region,acquisition" + (",repeat" if repeat_first else "")]
+    for number, subject in enumerate(subjects):
+        for visit, factor in enumerate(depth_factors, start=1):
+            spec = preset_spec("forehead-moderate", size_px=size_px)
+            wrinkles = tuple(dataclasses.replace(w, depth_um=w.depth_um * factor) for w in spec.wrinkles)
+            surface = make_surface(dataclasses.replace(spec, shift_um=(12.0 * visit, -7.0 * visit), wrinkles=wrinkles), seed=number + 1)
+            settings = default_settings(effects=Effects(interreflection=False))
+            folders = [f"{subject}_v{visit}"] + ([f"{subject}_v{visit}_repeat"] if repeat_first and visit == 1 else [])
+            for capture, folder in enumerate(folders):  # a repeat capture: the same skin, new sensor noise
+                bands, info = simulate_acquisition(surface, settings, seed=100 * number + 10 * visit + capture)
+                write_synthetic_acquisition(root / folder, surface, bands, settings=settings, seed=number + 1, info=info)
+            repeat = ("," + (folders[1] if len(folders) > 1 else "")) if repeat_first else ""
+            rows.append(f"{subject},V{visit},forehead,{folders[0]}{repeat}")
+    (root / "study.csv").write_text("\n".join(rows) + "\n")
+    return root / "study.csv"
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    """2 subjects x 3 visits of simulated skin (small, quick), one acquisition corrupt."""
-    import dataclasses
+    """2 subjects x 3 visits at 128 px, one acquisition corrupt."""
+    path = write_study(tmp_path_factory.mktemp("study"), ["S01", "S02"], size_px=128)
+    (path.parent / "S02_v3" / "red_01.png").write_bytes(b"\\x89PNG broken")
+    return path
 
-    root = tmp_path_factory.mktemp("study")
-    rows = ["subject,visit,region,acquisition"]
-    for subject, seed in (("S01", 1), ("S02", 2)):
-        for visit, (shift, depth_factor) in enumerate((((0, 0), 1.0), ((20.0, -10.0), 0.9), ((-15.0, 25.0), 0.8)), start=1):
-            spec = preset_spec("forehead-moderate", size_px=128)
-            wrinkles = tuple(dataclasses.replace(w, depth_um=w.depth_um * depth_factor) for w in spec.wrinkles)
-            surface = make_surface(dataclasses.replace(spec, shift_um=shift, wrinkles=wrinkles), seed=seed)
-            settings = default_settings(effects=Effects(interreflection=False))
-            bands, info = simulate_acquisition(surface, settings, seed=10 * seed + visit)
-            folder = root / f"{subject}_v{visit}"
-            write_synthetic_acquisition(folder, surface, bands, settings=settings, seed=seed, info=info)
-            rows.append(f"{subject},V{visit},forehead,{folder.name}")
-    (root / "S02_v3" / "red_01.png").write_bytes(b"\\x89PNG broken")  # the corrupt one
-    (root / "study.csv").write_text("\n".join(rows) + "\n")
-    return root / "study.csv"
+
+@pytest.fixture(scope="module")
+def twelve(tmp_path_factory):
+    """4 subjects x 3 visits at 96 px: the fault-injection study."""
+    return write_study(tmp_path_factory.mktemp("twelve"), ["A", "B", "C", "D"])
 
 
 def tables(out):
     return {name: pd.read_csv(out / name) for name in ("results.csv", "changes.csv", "failures.csv")}
 
 
+def descendants(pid):
+    """Every process below ``pid`` (from /proc)."""
+    found, queue = [], [pid]
+    while queue:
+        parent = queue.pop()
+        for task in Path(f"/proc/{parent}/task").glob("*"):
+            try:
+                children = [int(c) for c in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            found += children
+            queue += children
+    return found
+
+
+def assert_gone(pids, within=5.0):
+    deadline = time.time() + within
+    alive = list(pids)
+    while alive and time.time() < deadline:
+        alive = [p for p in alive if Path(f"/proc/{p}").exists() and "Z" not in _state(p)]
+        time.sleep(0.1)
+    assert not alive, f"orphan processes left: {alive}"
+
+
+def _state(pid):
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except OSError:
+        return "Z"
+
+
+def assert_items_complete(out):
+    """Every visible item folder is complete (stamped, with its files); staging folders aside."""
+    for kind, needed in (("items", "parameters.json"), ("changes", "changes.json")):
+        for folder in out.glob(f"{kind}/*/*/*"):
+            if folder.name.startswith("."):
+                continue
+            assert (folder / "batch.json").is_file() and (folder / needed).is_file(), folder
+
+
 @pytest.fixture(scope="module")
 def local_run(study, tmp_path_factory):
-    out = tmp_path_factory.mktemp("local")
-    counts, _, _ = run_study(study, out, workers=2)
-    return out, counts
+    out = tmp_path_factory.mktemp("local") / "out"
+    run = subprocess.run([*CLI, "batch", str(study), "-o", str(out), "--workers", "2"], capture_output=True, text=True, timeout=600)
+    return out, run
 
 
 @pytest.mark.slow
-def test_local_processes(local_run):
-    out, counts = local_run
-    assert counts == {"computed": 8, "skipped": 0, "failed": 1}  # 5 of 6 measures (S02 V3 is corrupt) + 3 compares
+def test_local_processes(study, local_run):
+    out, run = local_run
+    assert run.returncode == 1, run.stderr  # one item failed: the exit status says so
+    failed_lines = [line for line in run.stderr.splitlines() if line.startswith("failed:")]
+    assert len(failed_lines) == 1 and failed_lines[0].startswith("failed: S02 V3 forehead (measure):") and "red_01.png" in failed_lines[0]
+    assert "computed 8, skipped (already done) 0, failed 1" in run.stdout  # 5 of 6 measures + 3 compares
     t = tables(out)
     assert len(t["results.csv"]) == 5 and set(t["results.csv"].subject) == {"S01", "S02"}
     failures = t["failures.csv"]
@@ -59,28 +131,100 @@ def test_local_processes(local_run):
     assert (out / "results.parquet").stat().st_size > 0 and (out / "summary.html").stat().st_size > 10_000
     depth = t["changes.csv"]
     s01 = depth[(depth.subject == "S01") & (depth.parameter == "wrinkles.mean_depth_um")]
-    print(s01[["visit", "change_percent"]])
     assert (s01.change_percent < 0).all()  # the wrinkles were made shallower at every visit
+    # privacy: no absolute path of the study (or of anything else under it) in any output
+    root = str(study.parent)
+    for file in out.rglob("*"):
+        if file.is_file():
+            assert root.encode() not in file.read_bytes(), file
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["options"]["height"]["method"] == "auto" and summary["skintopo_version"] == skintopo.batch.__version__
 
 
 @pytest.mark.slow
 def test_dask_local_cluster_gives_identical_tables(study, local_run, tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        counts, _, _ = run_study(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
-    assert counts == local_run[1]
+        counts, _, failures = run_study(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    assert counts == {"computed": 8, "skipped": 0, "failed": 1} and len(failures) == 1
     for name, table in tables(tmp_path / "dask").items():
         pd.testing.assert_frame_equal(table, tables(local_run[0])[name])
 
 
 @pytest.mark.slow
+def test_dask_worker_killed_mid_study_loses_and_duplicates_nothing(twelve, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    reference = tmp_path / "reference"
+    run_study(twelve, reference, workers=2)
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        outcome = {}
+        thread = threading.Thread(target=lambda: outcome.update(result=run_study(twelve, out, scheduler=cluster.scheduler_address)))
+        thread.start()
+        deadline = time.time() + 120
+        while time.time() < deadline and not list(out.glob("items/*/*/*/batch.json")):
+            time.sleep(0.05)
+        victim = next(iter(cluster.scheduler_info["workers"].values()))["pid"]
+        os.kill(victim, signal.SIGKILL)  # in the middle of the study
+        thread.join(timeout=300)
+    counts, _, failures = outcome["result"]
+    assert failures == [] and counts["failed"] == 0 and counts["computed"] == 20  # 12 measures + 8 compares, each once
+    assert_items_complete(out)
+    assert (out / "results.csv").read_bytes() == (reference / "results.csv").read_bytes()
+    assert (out / "changes.csv").read_bytes() == (reference / "changes.csv").read_bytes()
+    assert not list(out.glob("**/.*.partial"))
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_then_resume_gives_identical_results(twelve, tmp_path):
+    reference = tmp_path / "reference"
+    assert subprocess.run([*CLI, "batch", str(twelve), "-o", str(reference), "-q"], timeout=600).returncode == 0
+    out = tmp_path / "killed"
+    rng = np.random.default_rng(20261201)
+    for _ in range(10):
+        process = subprocess.Popen([*CLI, "batch", str(twelve), "-o", str(out), "-q"], stderr=subprocess.DEVNULL)
+        time.sleep(rng.uniform(0.5, 5.0))
+        children = descendants(process.pid)
+        process.kill()  # SIGKILL: nothing in skintopo runs after it
+        process.wait(timeout=30)
+        assert_gone(children)
+        assert_items_complete(out)
+    assert subprocess.run([*CLI, "batch", str(twelve), "-o", str(out), "-q"], timeout=600).returncode == 0
+    for name in ("results.csv", "changes.csv", "results_long.csv", "statistics.csv"):
+        assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+    assert not list(out.glob("**/.*.partial"))
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_workers_at_once_and_a_rerun_finishes(twelve, tmp_path):
+    out = tmp_path / "out"
+    process = subprocess.Popen([*CLI, "batch", str(twelve), "-o", str(out), "-q"], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(out.glob("items/*/*/*/batch.json")):
+        time.sleep(0.05)
+    children = descendants(process.pid)
+    assert children
+    sent = time.time()
+    process.send_signal(signal.SIGTERM)
+    stderr = process.communicate(timeout=30)[1]
+    assert time.time() - sent < 3.0  # no waiting for running items
+    assert process.returncode == 128 + signal.SIGTERM and "interrupted" in stderr and "run the same command again" in stderr
+    assert_gone(children)
+    assert_items_complete(out)
+    finished = len(list(out.glob("items/*/*/*/batch.json")))
+    assert 1 <= finished < 12
+    counts, _, _ = run_study(twelve, out, workers=2)
+    assert counts["skipped"] == finished and counts["computed"] == 20 - finished
+
+
+@pytest.mark.slow
 def test_interrupted_batch_resumes_without_recomputing(study, local_run, tmp_path):
     out = tmp_path / "interrupted"
-    process = subprocess.Popen([sys.executable, "-m", "skintopo.cli", "batch", str(study), "-o", str(out), "--workers", "1", "-q"],
-                               start_new_session=True)
+    process = subprocess.Popen([*CLI, "batch", str(study), "-o", str(out), "--workers", "1", "-q"], start_new_session=True,
+                               stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
     while time.time() < deadline and len(list(out.glob("items/*/*/*/batch.json"))) < 2:
-        time.sleep(0.2)
+        time.sleep(0.1)
     os.killpg(process.pid, signal.SIGINT)  # Ctrl-C, to the whole process group as a terminal would
     process.wait(timeout=60)
     finished = len(list(out.glob("items/*/*/*/batch.json")))
@@ -92,6 +236,146 @@ def test_interrupted_batch_resumes_without_recomputing(study, local_run, tmp_pat
         pd.testing.assert_frame_equal(table, tables(local_run[0])[name])
 
 
+@pytest.mark.slow
+def test_fingerprint_recomputes_exactly_the_affected_items(tmp_path, monkeypatch):
+    study_path = write_study(tmp_path / "study", ["S"], size_px=96)
+    out = tmp_path / "out"
+
+    def run(**options):
+        counts, _, failures = run_study(study_path, out, workers=1, **options)
+        assert failures == []
+        return counts["computed"], counts["skipped"]
+
+    assert run() == (5, 0)  # 3 measures + 2 compares
+    assert run() == (0, 5)
+    monkeypatch.setattr(skintopo.batch, "__version__", "99.0")  # an upgrade
+    assert run() == (5, 0)
+    assert run() == (0, 5)
+    image = study_path.parent / "S_v3" / "red_01.png"  # one byte changed, same size: that visit and its compare
+    data = bytearray(image.read_bytes())
+    data[-20] ^= 0x01
+    image.write_bytes(bytes(data))
+    counts = run_study(study_path, out, workers=1)[0]
+    if counts["failed"]:  # the flipped byte broke the PNG: the item is redone (and fails), nothing else
+        assert counts == {"computed": 0, "skipped": 4, "failed": 1}
+    else:
+        assert (counts["computed"], counts["skipped"]) == (2, 3)
+    image.write_bytes(bytes(data[:-20]) + bytes([data[-20] ^ 0x01]) + bytes(data[-19:]))  # restored
+    assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0))) == (5, 0)  # an option
+    assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0)), force=True) == (5, 0)
+
+
+def test_bad_batch_inputs_give_clear_errors_and_write_nothing(tmp_path, capsys):
+    study_path = tmp_path / "study" / "study.csv"
+    (tmp_path / "study" / "a").mkdir(parents=True)
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    before = sorted(p.name for p in (tmp_path / "study").rglob("*"))
+    with pytest.raises(SkinTopoError, match="holds the study file"):
+        run_study(study_path, tmp_path / "study")
+    with pytest.raises(SkinTopoError, match="overlaps the acquisition folder a"):
+        run_study(study_path, tmp_path / "study" / "a" / "out")
+    with pytest.raises(SkinTopoError, match="holds the study file"):
+        run_study(study_path, tmp_path)
+    with pytest.raises(SkinTopoError, match="--workers must be 1 or more"):
+        run_study(study_path, tmp_path / "new", workers=0)
+    with pytest.raises(SystemExit):
+        main(["batch", str(study_path), "-o", str(tmp_path / "new2"), "--workers", "0"])
+    assert "must be 1 or more" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "study").rglob("*")) == before
+    assert not (tmp_path / "new").exists() and not (tmp_path / "new2").exists()
+
+
+def test_unreachable_scheduler_is_a_clear_error_within_the_timeout(tmp_path):
+    pytest.importorskip("distributed")
+    study_path = tmp_path / "study.csv"
+    (tmp_path / "a").mkdir()
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    with socket.socket() as sock:  # a port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    started = time.time()
+    with pytest.raises(SkinTopoError, match=f"cannot reach the Dask scheduler at {address} within 1 s"):
+        run_study(study_path, tmp_path / "out", scheduler=address, scheduler_timeout=1.0)
+    assert time.time() - started < 8 and not (tmp_path / "out").exists()
+
+
+def test_a_second_concurrent_run_on_the_same_folder_is_refused(tmp_path):
+    study_path = tmp_path / "study" / "study.csv"
+    (tmp_path / "study" / "a").mkdir(parents=True)
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / ".lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a running batch holds it
+        with pytest.raises(SkinTopoError, match="another skintopo batch is writing"):
+            run_study(study_path, out)
+
+
+def test_every_command_refuses_an_output_equal_to_or_inside_an_input(tmp_path, capsys):
+    z = make_surface(preset_spec("forehead-low", size_px=64), seed=1).height
+    a, b = tmp_path / "a.x3p", tmp_path / "b.x3p"
+    z.save(a)
+    z.save(b)
+    original = a.read_bytes()
+    assert main(["evaluate", str(a), str(b), "-o", str(a), "--overwrite", "-q"]) == 2
+    assert "would overwrite or lie inside the input" in capsys.readouterr().err and a.read_bytes() == original
+    assert main(["evaluate", str(a), str(b), "-o", str(tmp_path), "-q"]) == 2
+    assert "is a folder" in capsys.readouterr().err
+    images = tmp_path / "spheres"
+    images.mkdir()
+    (images / "s1.png").write_bytes(b"x")
+    assert main(["calibrate", "lights", str(images / "s1.png"), "-o", str(images / "s1.png"), "--overwrite", "-q"]) == 2
+    assert "would overwrite" in capsys.readouterr().err and (images / "s1.png").read_bytes() == b"x"
+    measured = tmp_path / "m"
+    assert main(["wrinkles", str(a), "-o", str(measured), "-q"]) == 0
+    for command in (["measure", str(measured), "-o", str(measured / "inner")], ["wrinkles", str(measured), "-o", str(measured)],
+                    ["compare", str(measured), str(b), "-o", str(measured)]):
+        listing = sorted(p.name for p in measured.rglob("*"))
+        assert main([*command, "--overwrite", "-q"]) == 2, command
+        assert "overlaps the input" in capsys.readouterr().err
+        assert sorted(p.name for p in measured.rglob("*")) == listing
+
+
+def test_batch_passes_measure_options_to_its_items(tmp_path):
+    study_path = write_study(tmp_path / "study", ["S"], size_px=80, depth_factors=(1.0,))
+    out = tmp_path / "out"
+    assert main(["batch", str(study_path), "-o", str(out), "-q", "--workers", "1", "--method", "blue", "--min-depth-um", "40"]) == 0
+    summary = json.loads((out / "items" / "S" / "forehead" / "V1" / "summary.json").read_text())
+    assert summary["source"]["height"] == "blue band"
+    assert summary["options"]["segmentation"]["min_depth_um"] == 40.0 and summary["options"]["height"]["method"] == "blue"
+    assert json.loads((out / "summary.json").read_text())["options"]["height"]["method"] == "blue"
+
+
+def test_study_statistics_against_scipy():
+    from scipy import stats
+
+    before = {"S1": 10.0, "S2": 12.5, "S3": 9.0, "S4": 14.0, "S5": 11.0}
+    after = {"S1": 8.9, "S2": 12.9, "S3": 7.1, "S4": 12.2, "S5": 10.1}
+    changes = pd.DataFrame([{"subject": s, "region": "fh", "baseline_visit": "V1", "visit": "V2", "parameter": "Sa",
+                             "baseline": before[s], "follow_up": after[s], "change": after[s] - before[s]} for s in before]
+                           + [{"subject": "S1", "region": "fh", "baseline_visit": "V1", "visit": "V2", "parameter": "wrinkle1.max_depth_um",
+                               "baseline": 1.0, "follow_up": 2.0, "change": 1.0}])
+    repeats = pd.DataFrame([{"subject": s, "region": "fh", "baseline_visit": "V1", "visit": "V1", "parameter": "Sa", "change": e}
+                            for s, e in (("S1", 0.3), ("S2", -0.5), ("S3", 0.2))])
+    visits = {("fh", "V1"): set(before) | {"S6"}, ("fh", "V2"): set(after)}
+    table = study_statistics(changes, repeats, {"Sa": "um"}, visits)
+    assert list(table.parameter) == ["Sa"]  # per-wrinkle rows are not pooled across subjects
+    row = table.iloc[0]
+    x, y = np.array(list(before.values())), np.array(list(after.values()))
+    d = y - x
+    t = stats.ttest_rel(y, x)
+    w = stats.wilcoxon(y - x)
+    half = stats.t.ppf(0.975, 4) * d.std(ddof=1) / np.sqrt(5)
+    s_r = np.sqrt((0.3**2 + 0.5**2 + 0.2**2) / 6)
+    expected = {"subjects": 5, "mean_change": d.mean(), "ci95_low": d.mean() - half, "ci95_high": d.mean() + half,
+                "t_statistic": t.statistic, "t_p_value": t.pvalue, "wilcoxon_statistic": w.statistic, "wilcoxon_p_value": w.pvalue,
+                "detection_limit": 2.8 * s_r, "repeat_pairs": 3, "fraction_beyond_limit": np.mean(np.abs(d) > 2.8 * s_r),
+                "mean_change_percent": 100 * d.mean() / x.mean(), "unpaired_subjects": 1}
+    for name, value in expected.items():
+        assert row[name] == pytest.approx(value, rel=1e-12, abs=1e-12), name
+    assert row.unit == "um"
+
+
 def test_study_validation_reports_every_problem(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "study.csv").write_text("subject,visit,region,acquisition,baseline\nS1,V1,fh,a,\nS1,V1,fh,a,\nS2,V2,fh,missing,V1\n,V3,fh,a,\n")
@@ -100,3 +384,34 @@ def test_study_validation_reports_every_problem(tmp_path):
     message = str(error.value)
     assert "4 problem(s)" in message and "listed twice" in message and "'missing' not found" in message
     assert "empty subject" in message and "baseline visit 'V1' of subject S2" in message
+
+
+@pytest.mark.slow
+def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(tmp_path):
+    study_path = write_study(tmp_path / "study", ["S1", "S2", "S3"], size_px=96, depth_factors=(1.0, 0.8), repeat_first=True)
+    out = tmp_path / "out"
+    counts, _, failures = run_study(study_path, out, workers=2)
+    assert failures == [] and counts["computed"] == 6 + 3 + 3 + 3  # visits + repeats measured, 3 compares, 3 repeat pairs
+    statistics = pd.read_csv(out / "statistics.csv")
+    depth = statistics[statistics.parameter == "wrinkles.mean_depth_um"].iloc[0]
+    assert depth.subjects == 3 and depth.repeat_pairs == 3 and depth.mean_change < 0 and np.isfinite(depth.detection_limit)
+    assert depth.ci95_low < depth.mean_change < depth.ci95_high
+    page = (out / "summary.html").read_text()
+    assert "mean wrinkle depth" in page and "µm" in page and "items/S1/forehead/V1/report.html" in page
+    assert "default-src 'none'" in page and "http://" not in page and "https://" not in page
+    if CHROMIUM is None:
+        pytest.skip("no chromium on this machine (Debian package 'chromium'): summary page not rendered")
+    for width in (1400, 390):
+        shot = tmp_path / f"summary-{width}.png"
+        run = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+                              "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
+                              f"--screenshot={shot}", f"--window-size={width},2400", (out / "summary.html").as_uri()],
+                             capture_output=True, text=True, timeout=120)
+        assert shot.is_file(), run.stderr
+        import imagecodecs
+
+        image = imagecodecs.imread(shot)[..., :3]
+        # nothing cut off on the right: the last columns of the page are background only
+        assert (image[:, -6:] >= 250).all(), f"content reaches the right edge at {width} px"
+        if os.environ.get("SKINTOPO_KEEP_SCREENSHOTS"):
+            shutil.copy(shot, Path(os.environ["SKINTOPO_KEEP_SCREENSHOTS"]) / shot.name)

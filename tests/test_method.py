@@ -242,7 +242,7 @@ def test_correct_and_evaluate_commands(tmp_path, capsys):
     assert main(["synth", "-o", str(acquisition), "--preset", "forehead-moderate", "--size", "128", "-q"]) == 0
     assert main(["correct", str(acquisition), "-o", str(tmp_path / "corr"), "-q"]) == 0
     summary = json.loads((tmp_path / "corr" / "summary.json").read_text())
-    assert summary["options"]["method"] == "paper" and summary["wrinkles_found"] >= 1
+    assert summary["options"]["height"]["method"] == "paper" and summary["wrinkles_found"] >= 1
     for name in ("height.x3p", "wrinkles.png", "red/height.x3p", "white/height.x3p"):
         assert (tmp_path / "corr" / name).exists()
     report = tmp_path / "evaluation.json"

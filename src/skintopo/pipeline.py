@@ -193,8 +193,9 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
     needed = REQUIRED_BANDS if spectral or method == SPECULAR_FREE else (method,)
     missing = [b for b in needed if b not in acquisition.bands]
     if missing:
-        raise SkinTopoError(f"{acquisition.source}: the height method {method!r} needs the band(s) {missing}; "
-                            f"the acquisition has {sorted(acquisition.bands)}")
+        what = f"the spectral correction ({method})" if spectral else f"the height method {method!r}"
+        raise SkinTopoError(f"{acquisition.source}: {what} needs {', '.join(needed[:-1]) + ' and ' + needed[-1] if len(needed) > 1 else needed[0]} "
+                            f"images; missing {missing} (the acquisition has {sorted(acquisition.bands)})")
     # the spectral correction reports every band beside its own height (``skintopo correct``)
     wanted = list(acquisition.bands) if spectral or options.height.method == AUTO_HEIGHT else [method]
     results = reconstruct_bands(acquisition, options.reconstruction, wanted, progress)
