@@ -164,7 +164,8 @@ def test_dask_worker_killed_mid_study_loses_and_duplicates_nothing(twelve, tmp_p
         deadline = time.time() + 120
         while time.time() < deadline and not list(out.glob("items/*/*/*/batch.json")):
             time.sleep(0.05)
-        victim = next(iter(cluster.scheduler_info["workers"].values()))["pid"]
+        with distributed.Client(cluster) as client:
+            victim = next(iter(client.run(os.getpid).values()))
         os.kill(victim, signal.SIGKILL)  # in the middle of the study
         thread.join(timeout=300)
     counts, _, failures = outcome["result"]
@@ -251,16 +252,19 @@ def test_fingerprint_recomputes_exactly_the_affected_items(tmp_path, monkeypatch
     monkeypatch.setattr(skintopo.batch, "__version__", "99.0")  # an upgrade
     assert run() == (5, 0)
     assert run() == (0, 5)
-    image = study_path.parent / "S_v3" / "red_01.png"  # one byte changed, same size: that visit and its compare
-    data = bytearray(image.read_bytes())
-    data[-20] ^= 0x01
-    image.write_bytes(bytes(data))
-    counts = run_study(study_path, out, workers=1)[0]
-    if counts["failed"]:  # the flipped byte broke the PNG: the item is redone (and fails), nothing else
-        assert counts == {"computed": 0, "skipped": 4, "failed": 1}
-    else:
-        assert (counts["computed"], counts["skipped"]) == (2, 3)
-    image.write_bytes(bytes(data[:-20]) + bytes([data[-20] ^ 0x01]) + bytes(data[-19:]))  # restored
+    manifest = study_path.parent / "S_v3" / "acquisition.json"  # one byte changed, same size: that visit and its compare
+    text = manifest.read_text()
+    manifest.write_text(text.replace("synthetic skin", "synthetiC skin"))
+    assert manifest.stat().st_size == len(text.encode())
+    assert run() == (2, 3)
+    (study_path.parent / "S_v2" / "red_01.png").write_bytes(b"broken")  # a visit that now fails: its stale compare goes too
+    counts, _, failures = run_study(study_path, out, workers=1)
+    assert counts == {"computed": 0, "skipped": 3, "failed": 1} and [f["visit"] for f in failures] == ["V2"]
+    assert not (out / "changes" / "S" / "forehead" / "V2").exists() and not (out / "items" / "S" / "forehead" / "V2").exists()
+    assert set(pd.read_csv(out / "changes.csv").visit) == {"V3"}
+    shutil.rmtree(study_path.parent / "S_v2")
+    shutil.copytree(study_path.parent / "S_v3", study_path.parent / "S_v2")
+    assert run() == (2, 3)  # V2 measured again and compared
     assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0))) == (5, 0)  # an option
     assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0)), force=True) == (5, 0)
 
@@ -388,7 +392,7 @@ def test_study_validation_reports_every_problem(tmp_path):
 
 @pytest.mark.slow
 def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(tmp_path):
-    study_path = write_study(tmp_path / "study", ["S1", "S2", "S3"], size_px=96, depth_factors=(1.0, 0.8), repeat_first=True)
+    study_path = write_study(tmp_path / "study", ["S1", "S2", "S3"], size_px=128, depth_factors=(1.0, 0.8), repeat_first=True)
     out = tmp_path / "out"
     counts, _, failures = run_study(study_path, out, workers=2)
     assert failures == [] and counts["computed"] == 6 + 3 + 3 + 3  # visits + repeats measured, 3 compares, 3 repeat pairs
@@ -403,7 +407,7 @@ def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(t
         pytest.skip("no chromium on this machine (Debian package 'chromium'): summary page not rendered")
     for width in (1400, 390):
         shot = tmp_path / f"summary-{width}.png"
-        run = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+        run = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run", "--disable-background-networking",
                               "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
                               f"--screenshot={shot}", f"--window-size={width},2400", (out / "summary.html").as_uri()],
                              capture_output=True, text=True, timeout=120)

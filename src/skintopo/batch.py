@@ -180,12 +180,11 @@ def run_task(kind, inputs, out, stamp, options):
         return "failed", f"{exc.__class__.__name__}: {exc}"
 
 
-def _worker_start():
+def _worker_start(parent):
     """In each local worker: leave Ctrl-C to the parent (which stops the workers itself), and
-    exit when the parent dies, however it died (Linux's parent-death signal, and a watch of
-    the parent's pid where that is not available)."""
+    exit when the parent (pid ``parent``) dies, however it died: Linux's parent-death signal,
+    and a watch of the parent's pid where that is not available."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent = os.getppid()
     try:
         import ctypes
 
@@ -213,7 +212,8 @@ class LocalRunner:
 
         if not isinstance(workers, int) or workers < 1:
             raise SkinTopoError(f"--workers must be 1 or more, got {workers}")
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start)
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_worker_start, initargs=(os.getpid(),))
 
     def submit(self, *args):
         return self.pool.submit(run_task, *args)
@@ -397,8 +397,10 @@ def _compare_tasks(study, out, settings):
     tasks = []
     for item, kind, before, after, folder in pairs:
         inputs = [before / "height.x3p", after / "height.x3p"]
-        if all((p.parent / STAMP).is_file() for p in inputs):  # a failed measure is recorded there
+        if all((p.parent / STAMP).is_file() for p in inputs):
             tasks.append(_Task(item, kind, [before, after], folder, fingerprint(inputs, settings | {"kind": "compare"})))
+        else:  # a measure failed (recorded there): an earlier comparison of these visits is stale
+            shutil.rmtree(folder, ignore_errors=True)
     return tasks
 
 

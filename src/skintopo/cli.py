@@ -437,7 +437,7 @@ def cmd_batch(args):
     bar.close()
     for failure in failures:
         print(f"failed: {failure['subject']} {failure['visit']} {failure['region']} ({failure['step']}): "
-              f"{failure['error'].splitlines()[0]}", file=sys.stderr)
+              f"{' '.join(line.strip() for line in failure['error'].splitlines())}", file=sys.stderr)
     _say(args, f"{total} acquisition(s): computed {counts['computed']}, skipped (already done) {counts['skipped']}, failed {counts['failed']}; "
                f"tables in {Path(args.out).resolve()} (results.csv, changes.csv, statistics.csv, summary.html)")
     return 1 if failures else 0

@@ -128,8 +128,7 @@ def _paired_plots(long):
             line = line.set_index("visit").reindex([v for v in visits if v in set(line.visit)])
             axis.plot([visits.index(v) for v in line.index], line.value.astype(float), marker="o", label=f"{subject} {region}")
         unit = _unit_label(subset.unit.iloc[0])
-        axis.set(xticks=range(len(visits)), xticklabels=visits, xlabel="visit", ylabel=f"{name} ({unit})" if unit else name,
-                 title=readable_name(name))
+        axis.set(xticks=range(len(visits)), xticklabels=visits, xlabel="visit", ylabel=unit or "(no unit)", title=readable_name(name))
         axis.title.set_fontsize(10)
         if subset.subject.nunique() <= 8:
             axis.legend(fontsize=7)
