@@ -13,6 +13,7 @@ from skintopo.batch import run_study
 from skintopo.synth import Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 
 COUNT = 6
+REPEATS = 2
 
 
 def main():
@@ -26,12 +27,15 @@ def main():
             write_synthetic_acquisition(root / f"a{index}", surface, bands, settings=settings, seed=index, info=info)
             rows.append(f"S{index},V1,forehead,a{index}")  # baselines only: measure throughput
         (root / "study.csv").write_text("\n".join(rows) + "\n")
-        result = {"benchmark": f"skintopo batch, {COUNT} acquisitions of 512x512 (16 images each), measure only"}
+        result = {"benchmark": f"skintopo batch, {COUNT} acquisitions of 512x512 (16 images each), measure only, best of 2 runs each"}
         for workers in (1, 2):
-            start = time.perf_counter()
-            counts, _, _ = run_study(root / "study.csv", root / f"out{workers}", workers=workers)
-            seconds = time.perf_counter() - start
-            assert counts["computed"] == COUNT, counts
+            times = []
+            for attempt in range(REPEATS):  # best of REPEATS: this machine's run-to-run noise is +-15 %
+                start = time.perf_counter()
+                counts, _, _ = run_study(root / "study.csv", root / f"out{workers}-{attempt}", workers=workers)
+                times.append(time.perf_counter() - start)
+                assert counts["computed"] == COUNT, counts
+            seconds = min(times)
             result[f"acquisitions_per_minute_{workers}_worker"] = round(60 * COUNT / seconds, 2)
         result["speedup"] = round(result["acquisitions_per_minute_2_worker"] / result["acquisitions_per_minute_1_worker"], 2)
         result["target_speedup"] = 1.6

@@ -180,11 +180,17 @@ def run_task(kind, inputs, out, stamp, options):
         return "failed", f"{exc.__class__.__name__}: {exc}"
 
 
-def _worker_start(parent):
+def _worker_start(parent, blas_threads):
     """In each local worker: leave Ctrl-C to the parent (which stops the workers itself), and
     exit when the parent (pid ``parent``) dies, however it died: Linux's parent-death signal,
-    and a watch of the parent's pid where that is not available."""
+    and a watch of the parent's pid where that is not available. With several workers, BLAS
+    keeps to ``blas_threads`` per worker: OpenBLAS's idle threads spin and would take the
+    cores the other workers need."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if blas_threads is not None:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=blas_threads, user_api="blas")
     try:
         import ctypes
 
@@ -213,7 +219,7 @@ class LocalRunner:
         if not isinstance(workers, int) or workers < 1:
             raise SkinTopoError(f"--workers must be 1 or more, got {workers}")
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_worker_start, initargs=(os.getpid(),))
+                                        initializer=_worker_start, initargs=(os.getpid(), 1 if workers > 1 else None))
 
     def submit(self, *args):
         return self.pool.submit(run_task, *args)
