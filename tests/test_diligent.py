@@ -29,7 +29,7 @@ def test_least_squares_on_ball_meets_published_figure(diligent_ball):
         assert np.isfinite(error).all()
         errors[band] = float(error.mean())
     print("DiLiGenT ball, mean angular error (deg), all 96 lights:", {b: round(e, 3) for b, e in errors.items()})
-    assert errors["white"] <= PUBLISHED_LEAST_SQUARES_DEGREES
+    assert errors["white"] <= 3.0  # the published least-squares baseline is 4.10
     # Per channel the published plain least-squares values are 4.07 / 4.15 / 4.88; excluding
     # saturated and shadowed observations must not do worse than them.
     assert errors["red"] <= 4.07 and errors["green"] <= 4.15 and errors["blue"] <= 4.88
@@ -69,5 +69,5 @@ def test_robust_solver_on_ball(diligent_ball):
             errors[count, solver] = (float(np.nanmean(error)), float(np.isnan(error).mean()))
     for (count, solver), (mean, invalid) in errors.items():
         print(f"DiLiGenT ball, white, {count:2d} lights, {solver:>13}: {mean:.3f} deg ({100 * invalid:.1f}% invalid)")
-    assert errors[96, "robust"][0] <= 2.5
+    assert errors[96, "robust"][0] <= 2.1
     assert errors[12, "robust"][0] < errors[12, "least-squares"][0]

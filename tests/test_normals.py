@@ -4,7 +4,7 @@ from analytic import SURFACES, normals_from_slopes, plane_and_bump
 from conftest import four_lights
 
 from skintopo.errors import SkinTopoError
-from skintopo.normals import angular_error_degrees, photometric_stereo, render_lambertian
+from skintopo.normals import angular_error_degrees, photometric_stereo, render_lambertian, separate_specular
 
 
 @pytest.mark.parametrize("name", sorted(SURFACES))
@@ -17,8 +17,14 @@ def test_noise_free_lambertian_normals_recovered_within_0_1_degree(name):
     result = photometric_stereo(images, lights)
     error = angular_error_degrees(result.normals, truth)
     print(f"{name}: mean {np.nanmean(error):.2e} deg, max {np.nanmax(error):.2e} deg")
-    shading = np.einsum("rci,mi->mrc", truth, lights)
-    usable = (shading > 0.05 * shading.max(axis=0)).sum(axis=0)  # the default shadow rule
+    # the default shadow rule, written out: I_i > 0.05 rho_0, rho_0 = the smaller |g| of the plain fit of all
+    # observations and of the fit without the brightest one
+    brightest = np.argmax(images, axis=0)
+    without = [np.linalg.norm(np.linalg.pinv(np.delete(lights, b, axis=0)) @ np.delete(images[:, r, c], b), axis=0)
+               for (r, c), b in np.ndenumerate(brightest)]
+    rho_0 = np.minimum(np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights), images), axis=-1),
+                       np.reshape(without, brightest.shape))
+    usable = (images > 0.05 * rho_0).sum(axis=0)
     np.testing.assert_array_equal(result.lights_used, usable)
     np.testing.assert_array_equal(result.valid, usable >= 3)  # steep slopes: some pixels keep only 2 lights
     assert result.valid.mean() > 0.9
@@ -108,3 +114,93 @@ def test_specular_free_band_removes_white_highlights():
     free = photometric_stereo(specular_free_images(*bands), lights)
     assert np.nanmax(angular_error_degrees(free.normals, truth)) < 0.1
     assert np.nanmean(angular_error_degrees(photometric_stereo(bands[2], lights).normals, truth)[10:20]) > 5
+
+
+def test_shadow_rule_is_not_fooled_by_a_highlight():
+    """A highlight several times the diffuse level must not push good dim observations under
+    the shadow threshold (the former rule was relative to the brightest observation)."""
+    z, p, q = plane_and_bump(shape=(30, 40))
+    truth = normals_from_slopes(0.3 * p, 0.3 * q)
+    slant = np.radians(np.repeat([20.0, 50.0, 75.0], 4))
+    tilt = np.radians(np.arange(12) * 30.0)
+    lights = np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
+    images = render_lambertian(truth, 0.4, lights).astype(np.float32)
+    images[5, :, :20] = 0.0  # a cast shadow under light 5 in the left half
+    matte = photometric_stereo(images, lights)
+    images[0] += 2.0  # a highlight 5x the diffuse level under light 0 at every pixel
+    result = photometric_stereo(images, lights)
+    # the rule, written out: rho_0 = min(|g| of all observations, |g| without the brightest, here light 0)
+    rho_0 = np.minimum(np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights), images), axis=-1),
+                       np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights[1:]), images[1:]), axis=-1))
+    np.testing.assert_array_equal(result.used, images > 0.05 * rho_0)
+    changed = (result.used != matte.used).mean()
+    print(f"observations kept or dropped differently because of the highlight: {100 * changed:.2f}%")
+    assert changed < 0.005  # the highlight barely moves the threshold
+    assert not result.used[5, :, :20].any()  # the cast shadow is left out
+    former = images < 0.05 * images.max(axis=0)  # relative to the brightest: the highlight
+    assert (former & matte.used).sum() > 0.1 * matte.used.sum()  # ... dropped more than 10% of the good observations
+
+
+def test_separate_specular_recovers_a_dichromatic_surface():
+    """v_i = d_i a + s_i (1, 1, 1) with a known diffuse colour a (varying over the field) and a
+    specular part that is 0 for at least one observation of each pixel."""
+    rng = np.random.default_rng(3)
+    z, p, q = plane_and_bump(shape=(24, 32))
+    truth = normals_from_slopes(0.3 * p, 0.3 * q)
+    lights = four_lights()
+    shading = render_lambertian(truth, 1.0, lights)
+    colour = np.array([0.6, 0.41, 0.33])[:, None, None] * (1 + 0.05 * np.sin(np.arange(32) / 5))[None, None, :]
+    specular = rng.uniform(0.0, 0.8, shading.shape) * (rng.random(shading.shape) < 0.5)
+    specular[rng.integers(0, 4, size=shading.shape[1:]), np.arange(24)[:, None], np.arange(32)[None, :]] = 0.0
+    bands = [shading * colour[c] + specular for c in range(3)]
+    separation = separate_specular(*bands, smoothing_px=1)
+    np.testing.assert_allclose(separation.specular, specular, atol=1e-5)
+    for c, band in enumerate(("red", "green", "blue")):
+        np.testing.assert_allclose(separation.diffuse[band], shading * colour[c], atol=1e-5)
+    flagged = separation.highlights("green")
+    np.testing.assert_array_equal(flagged, specular > 0.5 * shading * colour[1])
+
+
+@pytest.mark.slow
+def test_cross_band_highlights_on_a_shiny_sphere_and_skin_patch():
+    """Simulated rough dielectric coat, surface reflection 10x skin's: the robust solver with
+    the other bands' highlight flags beats plain least squares, and the default (new shadow
+    rule) beats the former brightest-relative rule where highlights are sharp."""
+    from shiny import light_set, render, skin_patch, sphere
+
+    for name, (height, normals, mask) in (("sphere", sphere()), ("skin", skin_patch())):
+        for count, roughness in ((4, 0.2), (50, 0.1), (12, 0.4)):
+            lights = light_set(count)
+            images = render(height, normals, lights, specular_strength=10.0, roughness=roughness)
+            flags = separate_specular(images["red"], images["green"], images["blue"]).highlights("green")
+            green = images["green"]
+
+            def error(**options):
+                return float(np.nanmean(angular_error_degrees(photometric_stereo(green, lights, **options).normals, normals)[mask]))
+
+            plain = error(shadow_fraction=0.0)
+            former = error(shadow_fraction=0.0, exclude=green < 0.05 * green.max(axis=0))
+            default, robust = error(), error(solver="robust", highlights=flags)
+            print(f"{name} {count} lights m={roughness}: plain {plain:.2f} former {former:.2f} default {default:.2f} cross-band robust {robust:.2f}")
+            assert robust < 0.6 * plain
+            if count == 4:  # the robust solver alone, with its few-lights rule
+                assert error(solver="robust") < plain
+            if count == 50 and roughness == 0.1:
+                assert default < former - 5
+
+
+@pytest.mark.slow
+def test_robust_solver_on_translucent_skin_stays_with_least_squares():
+    """All-effects simulated forehead (translucency, interreflection, a skin-level coat), 4
+    lights: the robust solver's few-lights rule must not take translucency's departures from
+    Lambert's law for highlights."""
+    from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+
+    surface = make_surface(preset_spec("forehead-moderate", size_px=160), seed=0)
+    bands, _ = simulate_acquisition(surface, default_settings(skin="dark"), seed=0)
+    for band in ("red", "green", "blue", "white"):
+        images, lights = bands[band]
+        errors = [float(np.nanmean(angular_error_degrees(photometric_stereo(images, lights, solver=solver).normals, surface.normals)))
+                  for solver in ("least-squares", "robust")]
+        print(band, errors)
+        assert errors[1] <= errors[0] + 0.15, band

@@ -34,7 +34,7 @@ from skintopo.pipeline import (
     acquisition_summary,
     reconstruct_bands,
 )
-from skintopo.reconstruct import SPECULAR_FREE, band_statistics
+from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES, SPECULAR_FREE, band_statistics
 from skintopo.results import load_albedo_beside, load_height_input, run_header
 from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
 from skintopo.texture import DEFAULT_P, DEFAULT_Q
@@ -92,16 +92,19 @@ def _add_reconstruction_options(parser):
                         help=f"photometric stereo solver: least-squares or robust (outlier rejection); default {DEFAULT_SOLVER}")
     parser.add_argument(
         "--shadow-fraction", type=_fraction, default=DEFAULT_SHADOW_FRACTION,
-        help="observations below this fraction of a pixel's brightest are taken as shadow and left out "
+        help="observations below this fraction of the pixel's albedo (from a first fit) are taken as shadow and left out "
         f"(default {DEFAULT_SHADOW_FRACTION})",
     )
+    parser.add_argument("--highlights", choices=HIGHLIGHT_MODES, default=DEFAULT_HIGHLIGHTS,
+                        help="none (default): fit every observation the shadow and saturation rules keep; cross-band: leave out the "
+                        "highlights found from red, green and blue together (helps opaque shiny surfaces and blue; see the docs)")
     parser.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
 
 
 def _reconstruction_options(args):
     return ReconstructionOptions(pixel_um=args.pixel_um, saturation=args.saturation, shadow_fraction=args.shadow_fraction,
-                                 solver=args.solver, integrator=args.integrator)
+                                 solver=args.solver, integrator=args.integrator, highlights=args.highlights)
 
 
 def _measure_options(args, method=None):

@@ -27,7 +27,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
 from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
-from skintopo.reconstruct import SPECULAR_FREE, reconstruct_band
+from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, specular_separation
 from skintopo.segmentation import (
     DEFAULT_CUTOFF_UM,
     DEFAULT_MIN_DEPTH_UM,
@@ -47,6 +47,10 @@ HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, *BANDS, SPECULAR_FREE)
 class ReconstructionOptions:
     """How an acquisition becomes normals and heights (see :func:`skintopo.reconstruct.reconstruct_band`).
 
+    ``highlights``: ``"none"`` fits every observation the shadow and saturation rules keep;
+    ``"cross-band"`` leaves out the highlights found from red, green and blue together
+    (:func:`skintopo.normals.separate_specular`).
+
     ``pixel_um`` is used only for folders without a pixel size (DiLiGenT), where it defaults to 1.
     """
 
@@ -55,6 +59,7 @@ class ReconstructionOptions:
     shadow_fraction: float = DEFAULT_SHADOW_FRACTION
     solver: str = DEFAULT_SOLVER
     integrator: str = DEFAULT_INTEGRATOR
+    highlights: str = DEFAULT_HIGHLIGHTS
 
 
 @dataclass(frozen=True)
@@ -156,9 +161,10 @@ def reconstruct_bands(acquisition, options: ReconstructionOptions = Reconstructi
     """Normals, albedo and height of each band (default: every band present).
 
     ``progress`` wraps the iteration over bands (e.g. a tqdm bar)."""
+    separation = specular_separation(acquisition) if options.highlights == "cross-band" else None  # once for every band
     return {
         band: reconstruct_band(acquisition, band, integrator=options.integrator, shadow_fraction=options.shadow_fraction,
-                               solver=options.solver)
+                               solver=options.solver, highlights=options.highlights, separation=separation)
         for band in progress(list(bands or acquisition.bands))
     }
 

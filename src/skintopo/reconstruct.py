@@ -15,7 +15,15 @@ from skintopo.acquisition import Acquisition
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.errors import SkinTopoError
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, PhotometricStereoResult, photometric_stereo, specular_free_images
+from skintopo.normals import (
+    DEFAULT_SHADOW_FRACTION,
+    DEFAULT_SOLVER,
+    HIGHLIGHT_RATIO,
+    PhotometricStereoResult,
+    photometric_stereo,
+    separate_specular,
+    specular_free_images,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,32 +38,68 @@ class BandReconstruction:
 
 
 SPECULAR_FREE = "specular-free"
+HIGHLIGHT_MODES = ("cross-band", "none")
+DEFAULT_HIGHLIGHTS = "none"  # cross-band helps opaque shiny surfaces and blue, hurts dark skin green (docs/method.md)
 
 
-def band_images(acquisition: Acquisition, band):
-    """(images, lights) of a band, or of the derived ``specular-free`` band (SUV projection of
-    red, green and blue, which must share their lights; see
-    :func:`skintopo.normals.specular_free_images`)."""
-    if band != SPECULAR_FREE:
-        return acquisition.bands[band].images, acquisition.bands[band].lights
-    missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
-    if missing:
-        raise SkinTopoError(f"the specular-free band needs red, green and blue; missing {missing}")
+def _rgb_share_lights(acquisition: Acquisition):
+    """True when red, green and blue are all present and taken under the same lights, in order."""
+    if any(b not in acquisition.bands for b in ("red", "green", "blue")):
+        return False
     lights = acquisition.bands["red"].lights
-    if any(acquisition.bands[b].lights.shape != lights.shape or not np.allclose(acquisition.bands[b].lights, lights, atol=1e-6) for b in ("green", "blue")):
-        raise SkinTopoError("the specular-free band needs red, green and blue images taken under the same lights, in the same order")
-    return specular_free_images(*(acquisition.bands[b].images for b in ("red", "green", "blue"))), lights
+    return all(acquisition.bands[b].lights.shape == lights.shape and np.allclose(acquisition.bands[b].lights, lights, atol=1e-6)
+               for b in ("green", "blue"))
+
+
+def specular_separation(acquisition: Acquisition):
+    """:func:`skintopo.normals.separate_specular` of the acquisition's red, green and blue
+    images, or None when the three bands are not all there under the same lights."""
+    if not _rgb_share_lights(acquisition):
+        return None
+    return separate_specular(*(acquisition.bands[b].images for b in ("red", "green", "blue")))
+
+
+def band_images(acquisition: Acquisition, band, separation=None):
+    """(images, lights, highlights) of a band: the images as captured and, with a
+    :class:`~skintopo.normals.SpecularSeparation`, the observations it flags as highlights
+    (white: where the common specular part exceeds the ratio of the white images' diffuse
+    part, when taken under the same lights), else None. ``specular-free`` is the SUV
+    projection of red, green and blue (:func:`skintopo.normals.specular_free_images`)."""
+    if band == SPECULAR_FREE:
+        if any(b not in acquisition.bands for b in ("red", "green", "blue")):
+            missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
+            raise SkinTopoError(f"the specular-free band needs red, green and blue; missing {missing}")
+        if not _rgb_share_lights(acquisition):
+            raise SkinTopoError("the specular-free band needs red, green and blue images taken under the same lights, in the same order")
+        return specular_free_images(*(acquisition.bands[b].images for b in ("red", "green", "blue"))), acquisition.bands["red"].lights, None
+    images, lights = acquisition.bands[band].images, acquisition.bands[band].lights
+    if separation is None:
+        return images, lights, None
+    if band in separation.diffuse:
+        return images, lights, separation.highlights(band)
+    if lights.shape == acquisition.bands["red"].lights.shape and np.allclose(lights, acquisition.bands["red"].lights, atol=1e-6):
+        with np.errstate(invalid="ignore"):
+            return images, lights, separation.specular > HIGHLIGHT_RATIO * np.maximum(images - separation.specular, 0)
+    return images, lights, None
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                     solver=DEFAULT_SOLVER):
+                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None):
     """Photometric stereo and integration for one band of ``acquisition``.
 
-    The height map keeps only pixels inside the acquisition mask with a valid normal.
+    ``highlights="cross-band"`` leaves out the observations that :func:`specular_separation`
+    (computed here unless ``separation`` is given) flags as highlights, and the robust
+    solver then relies on those flags instead of its few-lights rule; ``"none"`` (default)
+    fits every observation the shadow and saturation rules keep. The height map keeps only pixels inside the acquisition mask
+    with a valid normal.
     """
-    images, lights = band_images(acquisition, band)
+    if highlights not in HIGHLIGHT_MODES:
+        raise SkinTopoError(f"unknown highlight handling {highlights!r}; choose from {list(HIGHLIGHT_MODES)}")
+    if highlights == "cross-band" and separation is None and band != SPECULAR_FREE:
+        separation = specular_separation(acquisition)
+    images, lights, flagged = band_images(acquisition, band, separation if highlights == "cross-band" else None)
     start = time.perf_counter()
-    stereo = photometric_stereo(images, lights, mask=acquisition.mask, shadow_fraction=shadow_fraction, solver=solver)
+    stereo = photometric_stereo(images, lights, mask=acquisition.mask, shadow_fraction=shadow_fraction, solver=solver, highlights=flagged)
     middle = time.perf_counter()
     height = integrate_normals(stereo.normals, acquisition.pixel_um, mask=stereo.valid, method=integrator)
     end = time.perf_counter()

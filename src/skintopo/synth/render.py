@@ -258,6 +258,7 @@ class RenderSettings:
     interreflection_radius_um: float | None = None  # default: the widest wrinkle, at least 0.4 mm
     n_azimuth: int = 16
     specular_strength: float = 1.0
+    specular_roughness: float = SPECULAR_ROUGHNESS  # Beckmann m (skin 0.3-0.45, field notes; oily skin smoother)
     noise: float = 1.0
     saturate: bool = False
 
@@ -301,7 +302,8 @@ def render_bands(height, normals, settings: RenderSettings, rng):
             info["iterations"][f"{band}_{i}"] = iterations
             if effects.specular:
                 lit = direct[i] > 0
-                radiosity = radiosity + settings.specular_strength * lit * torrance_sparrow(normals, light, eta=FRESNEL_INDEX[band])
+                lobe = torrance_sparrow(normals, light, roughness=settings.specular_roughness, eta=FRESNEL_INDEX[band])
+                radiosity = radiosity + settings.specular_strength * lit * lobe
             stack.append(radiosity)
         images[band] = np.stack(stack)
     return images, info
