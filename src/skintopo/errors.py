@@ -1,8 +1,10 @@
 """Exceptions that carry a message meant for the user, not a traceback."""
 
 
-class SkinTopoError(Exception):
-    """An error caused by the input or the options, with a message that says what is wrong.
+class SkinTopoError(ValueError):
+    """An error caused by the input or the options (a file, a folder, a value given by the
+    user), with a message that says what is wrong. A ``ValueError``, so callers that catch
+    bad values catch it too.
 
     The command-line interface prints the message of these errors without a traceback.
     """

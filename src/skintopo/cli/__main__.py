@@ -1,0 +1,7 @@
+"""``python -m skintopo.cli``."""
+
+import sys
+
+from skintopo.cli import main
+
+sys.exit(main())

@@ -1,0 +1,56 @@
+"""``skintopo correct``: the paper's spectral correction."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+
+from skintopo.cli import options as shared
+from skintopo.correction import DEFAULT_METHOD as DEFAULT_CORRECTION_METHOD
+from skintopo.correction import METHODS as CORRECTION_METHODS
+from skintopo.outputs import check_output_folder, staged_output_folder, write_json
+from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_summary
+from skintopo.reconstruct import band_statistics
+from skintopo.results import run_header
+
+
+def run(args):
+    from skintopo.outputs import write_label_image
+    from skintopo.pipeline import acquisition_height
+
+    check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
+    started = time.perf_counter()
+    acquisition = shared.load(args, None)
+    options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method),
+                             segmentation=shared.segmentation_options(args))
+    made = acquisition_height(acquisition, options, shared.band_progress(args))
+    segmentation = made.correction.segmentation
+    summary = run_header(
+        "correct", acquisition=acquisition_summary(acquisition),
+        options=options.as_dict() | {"segmentation_parameters": segmentation.parameters},
+        height=made.description,
+        wrinkles_found=segmentation.count,
+        wrinkle_area_fraction=float(segmentation.mask.mean()),
+        bands={band: band_statistics(result) for band, result in made.bands.items()},
+    )
+    with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition]) as staging:
+        made.height.save(staging / "height.x3p")
+        write_label_image(staging / "wrinkles.png", segmentation.labels)
+        for band, result in made.bands.items():
+            shared.write_band_outputs(staging / band, result)
+        summary["seconds_total"] = time.perf_counter() - started
+        write_json(staging / "summary.json", summary)
+    shared.say(args, f"{segmentation.count} wrinkle(s) segmented; height: {made.description}, in {Path(args.out).resolve() / 'height.x3p'}")
+    return 0
+
+
+def add_parser(commands):
+    correct = commands.add_parser("correct", help="the paper's method: per-band reconstruction, wrinkle segmentation, spectral correction")
+    shared.add_acquisition_options(correct)
+    correct.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    correct.add_argument("--method", choices=CORRECTION_METHODS, default=DEFAULT_CORRECTION_METHOD,
+                         help=f"correction variant (default {DEFAULT_CORRECTION_METHOD})")
+    shared.add_segmentation_options(correct)
+    shared.add_output_switches(correct)
+    correct.set_defaults(handler=run)

@@ -1,0 +1,163 @@
+"""Option groups and helpers shared by the commands (one place, as rasterio's ``rio/options.py``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.acquisition import load_acquisition
+from skintopo.pipeline import HeightOptions, MeasureOptions
+from skintopo.acquisition import DEFAULT_SATURATION
+from skintopo.height import AUTO, DEFAULT_INTEGRATOR, INTEGRATORS
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, SOLVERS
+from skintopo.pipeline import HEIGHT_METHODS, ReconstructionOptions, SegmentationOptions, TextureOptions
+from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES
+from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
+from skintopo.texture import DEFAULT_P, DEFAULT_Q
+
+
+
+def number_type(convert, accept, requirement):
+    """An argparse type: ``convert`` the text, then require ``accept(value)``."""
+
+    def parse(text):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (np.isfinite(value) and accept(value)):
+            raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
+        return value
+
+    return parse
+
+
+positive_float = number_type(float, lambda v: v > 0, "a positive number")
+non_negative_float = number_type(float, lambda v: v >= 0, "zero or positive")
+fraction = number_type(float, lambda v: 0 <= v < 1, "in [0, 1)")
+size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
+positive_int = number_type(int, lambda v: v >= 1, "1 or more")
+non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
+
+
+def progress(iterable, *, quiet, desc, total=None):
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, disable=quiet, unit="band", file=sys.stderr, leave=False)
+
+
+def say(args, message):
+    if not args.quiet:
+        print(message)
+
+
+def add_acquisition_options(parser):
+    parser.add_argument("acquisition", type=Path, help="acquisition folder (acquisition.json or DiLiGenT layout)")
+    add_reconstruction_options(parser)
+
+
+def add_reconstruction_options(parser):
+    """Options of the acquisition -> normals -> height stages (``ReconstructionOptions``)."""
+    parser.add_argument(
+        "--pixel-um", type=positive_float, default=None, help="pixel size in micrometres for inputs without one (DiLiGenT folders, .npy maps; default 1)"
+    )
+    parser.add_argument(
+        "--saturation", type=fraction, default=DEFAULT_SATURATION,
+        help=f"fraction of full scale at or above which a pixel is saturated and left out (default {DEFAULT_SATURATION})",
+    )
+    parser.add_argument("--solver", choices=SOLVERS, default=DEFAULT_SOLVER,
+                        help=f"photometric stereo solver: least-squares or robust (outlier rejection); default {DEFAULT_SOLVER}")
+    parser.add_argument(
+        "--shadow-fraction", type=fraction, default=DEFAULT_SHADOW_FRACTION,
+        help="observations below this fraction of the pixel's albedo (from a first fit) are taken as shadow and left out "
+        f"(default {DEFAULT_SHADOW_FRACTION})",
+    )
+    parser.add_argument("--highlights", choices=HIGHLIGHT_MODES, default=DEFAULT_HIGHLIGHTS,
+                        help="none (default): fit every observation the shadow and saturation rules keep; cross-band: leave out the "
+                        "highlights found from red, green and blue together (helps opaque shiny surfaces and blue; see the docs)")
+    parser.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
+        help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
+
+
+def reconstruction_options(args):
+    return ReconstructionOptions(pixel_um=args.pixel_um, saturation=args.saturation, shadow_fraction=args.shadow_fraction,
+                                 solver=args.solver, integrator=args.integrator, highlights=args.highlights)
+
+
+def measure_options(args, method=None):
+    return MeasureOptions(
+        reconstruction=reconstruction_options(args),
+        height=HeightOptions(method or args.method),
+        segmentation=segmentation_options(args),
+        texture=TextureOptions(level_order=args.level, p=args.p, q=args.q),
+        regions=tuple(args.region),
+    )
+
+
+def load(args, bands):
+    acquisition = load_acquisition(args.acquisition, pixel_um=args.pixel_um, bands=bands, saturation=args.saturation)
+    if acquisition.pixel_um_assumed:
+        say(args, f"note: {args.acquisition} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
+    return acquisition
+
+
+def band_progress(args):
+    return lambda bands: progress(bands, quiet=args.quiet, desc="reconstruct")
+
+
+def write_band_outputs(folder, result):
+    folder.mkdir()
+    np.save(folder / "normals.npy", result.stereo.normals.astype(np.float32))
+    np.save(folder / "albedo.npy", result.stereo.albedo.astype(np.float32))
+    result.height.save(folder / "height.x3p")
+
+
+def segmentation_options(args):
+    return SegmentationOptions(cutoff_um=args.cutoff_um, short_cutoff_um=args.short_cutoff_um, min_depth_um=args.min_depth_um,
+                               min_length_um=args.min_length_um)
+
+
+def parse_region(text):
+    try:
+        name, box = text.split("=", 1)
+        x0, y0, x1, y1 = (float(v) for v in box.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"region {text!r} must look like NAME=x0,y0,x1,y1 (micrometres)") from None
+    if not (x1 > x0 and y1 > y0):
+        raise argparse.ArgumentTypeError(f"region {text!r}: need x1 > x0 and y1 > y0")
+    return name, (x0, y0, x1, y1)
+
+
+def add_output_switches(parser):
+    """--overwrite and -q/--quiet, which every command that writes an output folder takes."""
+    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, tables or messages (errors still go to stderr)")
+
+
+def add_segmentation_options(parser):
+    parser.add_argument("--cutoff-um", type=positive_float, default=DEFAULT_CUTOFF_UM,
+                        help=f"lambda_c of the segmentation band-pass (default {DEFAULT_CUTOFF_UM:g})")
+    parser.add_argument("--short-cutoff-um", type=positive_float, default=DEFAULT_SHORT_CUTOFF_UM,
+                        help=f"lambda_s (default {DEFAULT_SHORT_CUTOFF_UM:g})")
+    parser.add_argument("--min-depth-um", type=positive_float, default=DEFAULT_MIN_DEPTH_UM,
+                        help=f"shallowest wrinkle (default {DEFAULT_MIN_DEPTH_UM:g})")
+    parser.add_argument("--min-length-um", type=positive_float, default=DEFAULT_MIN_LENGTH_UM,
+                        help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
+
+
+def add_measure_options(parser):
+    """Every option of ``MeasureOptions``: reconstruction, height method, texture, regions, segmentation."""
+    add_reconstruction_options(parser)
+    parser.add_argument("--method", choices=HEIGHT_METHODS, default=HeightOptions().method,
+                        help="height measured from an acquisition: auto (default: the paper's correction when red, green and blue "
+                        "are present, else white, else the only band), paper, feathered, or one band")
+    parser.add_argument("--level", type=non_negative_int, default=TextureOptions().level_order,
+                        help="order of the least-squares form removed first (default 1: plane)")
+    parser.add_argument("--p", type=float, default=DEFAULT_P, help=f"material ratio p of Vmp/Vmc/Vvc (default {DEFAULT_P:g} %%)")
+    parser.add_argument("--q", type=float, default=DEFAULT_Q, help=f"material ratio q of Vmc/Vvc/Vvv (default {DEFAULT_Q:g} %%)")
+    parser.add_argument("--region", type=parse_region, action="append", default=[],
+                        help="extra region NAME=x0,y0,x1,y1 in um from the top-left corner (pixel edges; repeatable)")
+    add_segmentation_options(parser)

@@ -1,0 +1,30 @@
+"""``skintopo paper-tables``: the paper's tables on simulated subjects."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+from skintopo.cli import options as shared
+from skintopo.outputs import check_output_folder, staged_output_folder
+
+
+def run(args):
+    from skintopo.paper import paper_tables
+
+    check_output_folder(args.out, overwrite=args.overwrite)
+    with staged_output_folder(args.out, overwrite=args.overwrite) as staging:
+        _, text = paper_tables(staging, size_px=args.size, pixel_um=args.pixel_um,
+                               progress=None if args.quiet else lambda s: print(f"subject {s.number} done", file=sys.stderr))
+    shared.say(args, text + f"\n\nwrote {Path(args.out).resolve()}")
+    return 0
+
+
+def add_parser(commands):
+    tables = commands.add_parser("paper-tables", help="the paper's Tables 1-2 and Figures 3 and 5 on four simulated subjects")
+    tables.add_argument("-o", "--out", type=Path, required=True, help="output folder (tables as CSV and Markdown, figures as PNG)")
+    tables.add_argument("--size", type=shared.size, default=256, help="field size in pixels (default 256)")
+    tables.add_argument("--pixel-um", type=shared.positive_float, default=20.0, help="pixel size of the simulated fields in micrometres (default 20)")
+    shared.add_output_switches(tables)
+    tables.set_defaults(handler=run)
