@@ -1,16 +1,17 @@
 # `make demo` and `make test` work on a fresh machine with Python 3.11: each creates (or reuses)
-# the local virtual environment .venv, installs the package and what it needs, then runs.
+# the local virtual environment .venv, installs the package and what it needs (at the versions
+# of constraints.txt, with which the README's figures were measured), then runs.
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench docs clean
+.PHONY: demo test test-latest bench docs clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,docs]'
+	$(PY) -m pip install --quiet -c constraints.txt -e '.[test,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -19,6 +20,13 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# the newest versions PyPI serves, in a separate environment: shows drift from constraints.txt
+test-latest:
+	$(PYTHON) -m venv .venv-latest
+	.venv-latest/bin/python -m pip install --quiet --upgrade pip
+	.venv-latest/bin/python -m pip install --quiet --upgrade -e '.[test]'
+	.venv-latest/bin/python -m pytest -q
+
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --quiet --strict
 
@@ -26,4 +34,4 @@ bench: $(STAMP)
 	for script in bench/bench_*.py; do $(PY) $$script || exit 1; done
 
 clean:
-	rm -rf $(VENV) demo-out build
+	rm -rf $(VENV) .venv-latest demo-out build

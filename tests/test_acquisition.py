@@ -2,14 +2,15 @@
 
 import json
 
-import cv2
 import numpy as np
+import tifffile
 import pytest
 from analytic import rms_error_after_offset
 
 from skintopo.acquisition import load_acquisition, read_image
 from skintopo.cli import main
 from skintopo.errors import AcquisitionError
+from skintopo.formats import write_png
 from skintopo.heightmap import HeightMap
 from skintopo.normals import angular_error_degrees
 
@@ -88,13 +89,13 @@ def test_missing_file(lambertian_acquisition, tmp_path, capsys):
 
 def test_mismatched_image_sizes(lambertian_acquisition, tmp_path, capsys):
     folder, _, _ = lambertian_acquisition
-    cv2.imwrite(str(folder / "blue_01.png"), np.zeros((20, 30), np.uint16))
+    write_png(folder / "blue_01.png", np.zeros((20, 30), np.uint16))
     assert_refused(folder, tmp_path, capsys, "blue_01.png: image size 30x20 differs")
 
 
 def test_bit_depth_mix(lambertian_acquisition, tmp_path, capsys):
     folder, _, _ = lambertian_acquisition
-    cv2.imwrite(str(folder / "red_03.png"), np.zeros((48, 64), np.uint8))
+    write_png(folder / "red_03.png", np.zeros((48, 64), np.uint8))
     assert_refused(folder, tmp_path, capsys, "red_03.png: pixel type uint8 differs", "one bit depth")
 
 
@@ -154,7 +155,7 @@ def test_manifest_that_is_not_json(lambertian_acquisition, tmp_path, capsys):
 
 def test_mask_of_the_wrong_size(lambertian_acquisition, tmp_path, capsys):
     folder, _, _ = lambertian_acquisition
-    cv2.imwrite(str(folder / "mask.png"), np.full((10, 10), 255, np.uint8))
+    write_png(folder / "mask.png", np.full((10, 10), 255, np.uint8))
     edit_manifest(folder, lambda m: m.update(mask="mask.png"))
     assert_refused(folder, tmp_path, capsys, "mask.png: mask size 10x10 differs from the images (64x48)")
 
@@ -177,7 +178,7 @@ def test_rgb_images_under_white_light_give_one_band_per_channel(tmp_path):
     entries = []
     for i, light in enumerate(lights):
         rgb = (rng.random((8, 9, 3)) * 60000).astype(np.uint16)  # below saturation
-        cv2.imwrite(str(tmp_path / f"w{i}.tif"), rgb[..., ::-1])  # OpenCV writes BGR
+        tifffile.imwrite(tmp_path / f"w{i}.tif", rgb, photometric="rgb")
         for channel in ("red", "green", "blue"):
             entries.append({"file": f"w{i}.tif", "band": channel, "light": light, "channel": channel})
         entries.append({"file": f"w{i}.tif", "band": "white", "light": light, "intensity": 2.0})
@@ -201,6 +202,6 @@ def test_saturated_pixels_are_marked(lambertian_acquisition):
     folder, _, _ = lambertian_acquisition
     image = read_image(folder / "red_00.png")
     image[:3, :3] = 65535
-    cv2.imwrite(str(folder / "red_00.png"), image)
+    write_png(folder / "red_00.png", image)
     images = load_acquisition(folder, bands=["red"]).bands["red"].images
     assert np.isnan(images[0, :3, :3]).all() and np.isfinite(images[1:]).all()

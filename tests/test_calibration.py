@@ -2,13 +2,13 @@
 
 import json
 
-import cv2
 import numpy as np
 import pytest
 
 from skintopo.calibration import calibrate_lights, sphere_normals
 from skintopo.cli import main
 from skintopo.errors import SkinTopoError
+from skintopo.formats import write_png
 
 SHAPE, SPHERE = (240, 300), (152.3, 117.8, 86.4)  # cx, cy, r in pixels
 
@@ -44,7 +44,7 @@ def write(folder, images):
     paths = []
     for i, image in enumerate(images):
         paths.append(folder / f"sphere_{i}.png")
-        cv2.imwrite(str(paths[-1]), image)
+        write_png(paths[-1], image)
     return paths
 
 
@@ -124,7 +124,7 @@ def test_flat_field_correction_makes_a_flat_target_flat(tmp_path):
     write_acquisition(folder, {"red": (skin, lights)}, 20.0)
     before = reconstruct_band(load_acquisition(folder), "red").height
     for i in range(4):
-        cv2.imwrite(str(folder / f"flat_{i}.png"), np.round(target[i] * 65535).astype(np.uint16))
+        write_png(folder / f"flat_{i}.png", np.round(target[i] * 65535).astype(np.uint16))
     manifest = json.loads((folder / "acquisition.json").read_text())
     for i, entry in enumerate(manifest["images"]):
         entry["flat"] = f"flat_{i}.png"
@@ -148,10 +148,10 @@ def test_dark_frame_and_crosstalk(tmp_path):
     entries = []
     for i in range(4):
         camera = led[i] @ mixing.T + dark
-        cv2.imwrite(str(tmp_path / f"rgb_{i}.png"), np.round(camera[..., ::-1] * 65535).astype(np.uint16))
+        write_png(tmp_path / f"rgb_{i}.png", np.round(camera * 65535).astype(np.uint16))
         for band in ("red", "green", "blue"):
             entries.append({"file": f"rgb_{i}.png", "band": band, "light": lights[i].tolist()})
-    cv2.imwrite(str(tmp_path / "dark.png"), np.round(dark[..., ::-1] * 65535).astype(np.uint16))
+    write_png(tmp_path / "dark.png", np.round(dark * 65535).astype(np.uint16))
     manifest = {"format": "skintopo-acquisition", "version": 1, "pixel_size_um": 10, "dark": "dark.png",
                 "crosstalk": mixing.tolist(), "images": entries}
     (tmp_path / "acquisition.json").write_text(json.dumps(manifest))

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
+from skintopo.acquisition import read_image
 from skintopo.errors import SkinTopoError
+from skintopo.formats import read_png, write_png
 from skintopo.heightmap import HeightMap
 
 
@@ -64,3 +66,33 @@ def test_bad_formats(tmp_path):
     with pytest.raises(SkinTopoError, match="h.sdf: not a readable .sdf height map"):
         HeightMap.load(tmp_path / "h.sdf")
     assert not list(tmp_path.glob("*.part"))
+
+
+@pytest.mark.parametrize("channels", [None, 2, 3, 4])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_png_round_trip_is_exact_in_every_depth_and_channel_count(tmp_path, dtype, channels):
+    rng = np.random.default_rng(5)
+    shape = (13, 17) if channels is None else (13, 17, channels)
+    image = rng.integers(0, np.iinfo(dtype).max + 1, size=shape, dtype=dtype)
+    write_png(tmp_path / "a.png", image)
+    back = read_png(tmp_path / "a.png")
+    assert back.dtype == dtype and back.shape == shape
+    np.testing.assert_array_equal(back, image)
+
+
+def test_png_channels_are_in_rgb_order_and_read_image_drops_alpha(tmp_path):
+    import zlib
+
+    # A 1 x 1 16-bit RGBA PNG written byte by byte (PNG spec: IHDR, IDAT, IEND; channels R, G, B, A)
+    def chunk(kind, data):
+        return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+
+    pixel = b"\x00" + (1000).to_bytes(2, "big") + (2000).to_bytes(2, "big") + (3000).to_bytes(2, "big") + (65535).to_bytes(2, "big")
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", (1).to_bytes(4, "big") * 2 + bytes([16, 6, 0, 0, 0]))
+           + chunk(b"IDAT", zlib.compress(pixel)) + chunk(b"IEND", b""))
+    (tmp_path / "rgba.png").write_bytes(png)
+    np.testing.assert_array_equal(read_png(tmp_path / "rgba.png")[0, 0], [1000, 2000, 3000, 65535])
+    np.testing.assert_array_equal(read_image(tmp_path / "rgba.png")[0, 0], [1000, 2000, 3000])
+    (tmp_path / "broken.png").write_bytes(png[:30])
+    with pytest.raises(SkinTopoError, match="broken.png: not a readable PNG"):
+        read_image(tmp_path / "broken.png")

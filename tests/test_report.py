@@ -1,5 +1,6 @@
 """The measure command's outputs and the HTML report, opened in headless Chromium."""
 
+import base64
 import json
 import re
 import shutil
@@ -26,7 +27,10 @@ def test_report_is_self_contained_and_escapes_user_text():
     assert not re.search(r"(src|href)=['\"]?(https?:)?//", page)  # nothing loaded from anywhere
     assert "http://" not in page and "https://" not in page
     assert "default-src 'none'" in page
-    assert "null" in page  # missing points travel as null (shown as gaps), never as zeros
+    grid = json.loads(page.split("<script id=grid type='application/json'>")[1].split("</script>")[0])
+    columns = np.frombuffer(base64.b64decode(grid["z"]), dtype="<f4").reshape(grid["shape"])
+    assert np.isnan(columns[10:20, 10:20]).all() and np.isfinite(columns[30:, 30:]).all()  # missing points stay gaps, never zeros
+    np.testing.assert_allclose(columns.T[40:50, 40:50], z[40:50, 40:50], rtol=1e-6)  # float32 of the heights
 
 
 @pytest.mark.slow
@@ -50,10 +54,9 @@ def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
         capture_output=True, text=True, timeout=120,
     )
     assert "Uncaught" not in run.stderr  # no JavaScript error in the console
-    import cv2
+    from skintopo.formats import read_png
 
-    image = cv2.imread(str(screenshot))
-    assert image is not None
+    image = read_png(screenshot)[..., :3]
     # The 3-D canvas sits below the two surface images: its area must not be blank.
     band = image[int(0.42 * image.shape[0]) : int(0.62 * image.shape[0]), 40:700]
     assert band.std() > 20 and len(np.unique(band.reshape(-1, 3), axis=0)) > 200

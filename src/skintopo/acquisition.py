@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.errors import AcquisitionError, SkinTopoError
+from skintopo.formats import read_png, write_png
 
 MANIFEST_NAME = "acquisition.json"
 FORMAT_NAME = "skintopo-acquisition"
@@ -140,13 +141,9 @@ def read_image(path):
         raise SkinTopoError(f"{path}: image file not found")
     suffix = path.suffix.lower()
     if suffix == ".png":
-        import cv2
-
-        image = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise SkinTopoError(f"{path}: not a readable PNG image")
+        image = read_png(path)
         if image.ndim == 3:
-            image = image[..., 2::-1] if image.shape[2] >= 3 else image[..., 0]
+            image = image[..., :3] if image.shape[2] >= 3 else image[..., 0]  # alpha dropped
     elif suffix in (".tif", ".tiff"):
         import tifffile
 
@@ -602,8 +599,6 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     Path
         The manifest path.
     """
-    import cv2
-
     folder = Path(folder)
     if folder.exists() and any(folder.iterdir()):
         raise SkinTopoError(f"{folder}: folder is not empty; will not write an acquisition into it")
@@ -615,7 +610,7 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
         for index, (image, light) in enumerate(zip(np.asarray(images), np.asarray(lights, dtype=float))):
             name = f"{band}_{index:02d}.png"
             counts = np.round(np.clip(np.nan_to_num(image), 0.0, 1.0) * 65535).astype(np.uint16)
-            cv2.imwrite(str(folder / name), counts)
+            write_png(folder / name, counts)
             entry = {"file": name, "band": band, "light": [round(float(v), 9) for v in light]}
             if intensities and band in intensities:
                 entry["intensity"] = float(intensities[band])
@@ -626,7 +621,7 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     if description:
         manifest["description"] = description
     if mask is not None:
-        cv2.imwrite(str(folder / "mask.png"), np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
+        write_png(folder / "mask.png", np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
         manifest["mask"] = "mask.png"
     manifest["images"] = entries
     path = folder / MANIFEST_NAME

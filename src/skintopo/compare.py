@@ -5,10 +5,11 @@ optionally a small scale), in two steps:
 
 1. coarse: rotation from the phase correlation of the log-polar magnitude spectra (Reddy &
    Chatterji 1996, via scikit-image), then the translation by phase correlation;
-2. fine: the parameters minimising a robust (Cauchy) misfit between the baseline and the
-   warped follow-up (cubic splines, form-levelled maps, interior only), so that what changed
-   between the visits (a treated wrinkle) weighs little. The Cauchy scale is 2.385 x the
-   median absolute residual after the coarse step.
+2. fine: the parameters minimising a robust (Cauchy) misfit sum log(1 + (r / c)^2) between
+   the baseline and the warped follow-up (cubic splines filtered once, form-levelled maps,
+   interior only; ``scipy.optimize.least_squares`` with ``loss="cauchy"``), so that what
+   changed between the visits (a treated wrinkle) weighs little. The Cauchy scale c is
+   2.385 x the median absolute residual after the coarse step.
 
 The residual misalignment is measured afterwards: tile-wise phase correlation (4 x 4 tiles)
 between the baseline and the registered follow-up; its RMS, in pixels, is reported. The
@@ -57,14 +58,17 @@ def _levelled(height: HeightMap):
     return np.where(height.mask, height.z - polynomial_form(height.z, height.spacing, 2, height.mask), 0.0)
 
 
-def _warp(image, shift, angle_deg, scale, order=3, cval=np.nan):
-    """Sample ``image`` at the follow-up positions of baseline pixels: x_f = s R (x_b - c) + c - t."""
+def _warp(image, shift, angle_deg, scale, order=3, cval=np.nan, prefilter=True):
+    """Sample ``image`` at the follow-up positions of baseline pixels: x_f = s R (x_b - c) + c - t.
+
+    ``prefilter=False`` takes ``image`` as spline coefficients already
+    (``scipy.ndimage.spline_filter``), so that repeated warps of one image filter it once."""
     rows, columns = image.shape
     centre = np.array([(rows - 1) / 2, (columns - 1) / 2])
     theta = np.radians(angle_deg)
     rotation = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]]) * scale
     offset = centre - rotation @ centre - np.asarray(shift)
-    return scipy.ndimage.affine_transform(image, rotation, offset=offset, order=order, mode="constant", cval=cval, prefilter=True)
+    return scipy.ndimage.affine_transform(image, rotation, offset=offset, order=order, mode="constant", cval=cval, prefilter=prefilter)
 
 
 def _coarse(fixed, moving):
@@ -108,11 +112,12 @@ def register_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fa
     if min(rows, columns) - 2 * margin < 16:
         raise SkinTopoError(f"the visits do not overlap enough to compare (coarse shift {shift[0]:.1f}, {shift[1]:.1f} pixels)")
     target = fixed[interior]
+    coefficients = scipy.ndimage.spline_filter(moving, order=3)  # once, not at every evaluation
 
     def residual(parameters):
         dy, dx, theta = parameters[:3]
         scale = parameters[3] if allow_scale else 1.0
-        return _warp(moving, (dy, dx), theta, scale)[interior] - target
+        return _warp(coefficients, (dy, dx), theta, scale, prefilter=False)[interior] - target
 
     start = np.array([shift[0], shift[1], angle] + ([1.0] if allow_scale else []))
     first = residual(start)
@@ -121,12 +126,13 @@ def register_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fa
         raise SkinTopoError("the visits do not overlap: no consistent alignment of the same skin was found")
     scale_c = CAUCHY_FACTOR * 1.4826 * np.median(np.abs(first[ok] - np.median(first[ok])))
 
-    def cost(parameters):
-        r = residual(parameters)
-        r = r[np.isfinite(r)]
-        return float(np.mean(np.log1p((r / scale_c) ** 2)))
+    def finite_residual(parameters):  # a sample warped in from outside the follow-up weighs nothing
+        r = residual(parameters).ravel()
+        return np.where(np.isfinite(r), r, 0.0)
 
-    result = scipy.optimize.minimize(cost, start, method="Powell", options={"xtol": 1e-4, "ftol": 1e-9, "maxfev": 4000})
+    # sum of log(1 + (r / c)^2): the Cauchy misfit, by trust-region least squares
+    result = scipy.optimize.least_squares(finite_residual, start, loss="cauchy", f_scale=scale_c, x_scale=np.ones_like(start),
+                                          diff_step=1e-4, xtol=1e-8, ftol=1e-10)
     parameters = result.x
     dy, dx, theta = parameters[:3]
     scale = float(parameters[3]) if allow_scale else 1.0

@@ -42,8 +42,20 @@ def current_umask():
     return mask
 
 
+def fsync_path(path):
+    """Flush a file's (or a folder's entries') data to the disk: a rename is durable only
+    once both the file and its folder are synced (POSIX; a power cut otherwise can leave a
+    "complete" name over an empty file)."""
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
 def atomic_write(path, write):
-    """Call ``write(tmp)`` on a temporary file beside ``path``, then rename it into place."""
+    """Call ``write(tmp)`` on a temporary file beside ``path``, sync it, rename it into place
+    and sync the folder."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
@@ -51,10 +63,30 @@ def atomic_write(path, write):
     try:
         write(tmp)
         os.chmod(tmp, 0o666 & ~current_umask())
+        fsync_path(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    fsync_path(path.parent)
+
+
+def read_png(path):
+    """A PNG image in its own bit depth (8 or 16) and channel order (grey, grey + alpha, RGB,
+    RGBA), through imagecodecs (libpng). Pillow would reduce 16-bit RGB to 8 bits."""
+    import imagecodecs
+
+    try:
+        return imagecodecs.png_decode(Path(path).read_bytes())
+    except (imagecodecs.PngError, ValueError) as exc:
+        raise SkinTopoError(f"{path}: not a readable PNG image ({exc})") from None
+
+
+def write_png(path, image):
+    """Write a uint8 or uint16 grey / RGB / RGBA array as a lossless PNG (RGB order)."""
+    import imagecodecs
+
+    Path(path).write_bytes(imagecodecs.png_encode(np.ascontiguousarray(image)))
 
 
 def write_height(path, z_um, spacing_um):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.errors import SkinTopoError
-from skintopo.formats import atomic_write, current_umask
+from skintopo.formats import atomic_write, current_umask, fsync_path, write_png
 
 
 def check_output_folder(out, *, overwrite=False, inputs=()):
@@ -52,7 +52,8 @@ def check_output_file(out, *, overwrite=False, inputs=()):
 
 @contextmanager
 def staged_output_folder(out, *, overwrite=False, inputs=()):
-    """Yield a temporary folder beside ``out``; on success it replaces ``out`` in one rename.
+    """Yield a temporary folder beside ``out``; on success its files are synced to the disk
+    and it replaces ``out`` in one rename.
 
     If the body raises (or is interrupted), the temporary folder is removed and ``out`` is
     left as it was.
@@ -64,9 +65,13 @@ def staged_output_folder(out, *, overwrite=False, inputs=()):
     staging.chmod(0o777 & ~current_umask())
     try:
         yield staging
+        for file in sorted(staging.rglob("*"), reverse=True):  # files, then their folders: durable before the rename
+            fsync_path(file)
+        fsync_path(staging)
         if out.exists():
             shutil.rmtree(out)
         staging.rename(out)
+        fsync_path(out.parent)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -94,9 +99,7 @@ def write_json_atomic(path, data):
 
 def write_label_image(path, labels):
     """Write a label image (0 = background, i = object i) as an 8- or 16-bit PNG."""
-    import cv2
-
     labels = np.asarray(labels)
     if labels.max(initial=0) > 65535:
         raise SkinTopoError(f"{path}: more than 65535 labels cannot be stored in a PNG")
-    cv2.imwrite(str(path), labels.astype(np.uint8 if labels.max(initial=0) <= 255 else np.uint16))
+    write_png(path, labels.astype(np.uint8 if labels.max(initial=0) <= 255 else np.uint16))
