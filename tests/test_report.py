@@ -27,7 +27,7 @@ def test_report_is_self_contained_and_escapes_user_text():
     assert not re.search(r"(src|href)=['\"]?(https?:)?//", page)  # nothing loaded from anywhere
     assert "http://" not in page and "https://" not in page
     assert "default-src 'none'" in page
-    grid = json.loads(page.split("<script id=grid type='application/json'>")[1].split("</script>")[0])
+    grid = json.loads(re.search(r"<script id=grid type=.application/json.>(.*?)</script>", page, re.S).group(1))
     columns = np.frombuffer(base64.b64decode(grid["z"]), dtype="<f4").reshape(grid["shape"])
     assert np.isnan(columns[10:20, 10:20]).all() and np.isfinite(columns[30:, 30:]).all()  # missing points stay gaps, never zeros
     np.testing.assert_allclose(columns.T[40:50, 40:50], z[40:50, 40:50], rtol=1e-6)  # float32 of the heights

@@ -11,11 +11,13 @@ Missing points (NaN) are shown as missing (transparent grey), never as zeros.
 from __future__ import annotations
 
 import base64
-import html
+import functools
+import importlib.resources
 import io
 import json
 
 import numpy as np
+from markupsafe import Markup
 
 DISPLAY_PIXELS = 600
 MESH_CELLS = 90
@@ -156,85 +158,7 @@ def fractal_png(results):
     return _png(figure)
 
 
-def _table(headers, rows):
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
-
-def _cell(value):
-    if value is None or (isinstance(value, float) and not np.isfinite(value)):
-        return "<span class=missing>missing</span>"
-    if isinstance(value, (float, np.floating)):
-        return f"{value:.5g}"
-    return html.escape(str(value))
-
-
-_SCRIPT = """
-const all = JSON.parse(document.getElementById('grid').textContent), grid = all;
-function decode(part) {  // base64 little-endian float32 rows, NaN = missing
-  const bytes = Uint8Array.from(atob(part.z), c => c.charCodeAt(0)), values = new Float32Array(bytes.buffer), [rows, cols] = part.shape;
-  part.z = Array.from({length: rows}, (_, i) => Array.from(values.subarray(i * cols, (i + 1) * cols)));
-}
-decode(all); decode(all.mesh);
-function finite(v) { return v !== null && Number.isFinite(v); }
-// Cross-section viewer: one image column (a vertical line, across horizontal wrinkles) chosen with the slider.
-const slider = document.getElementById('row'), profile = document.getElementById('profile');
-function drawProfile() {
-  const row = grid.z[+slider.value], ctx = profile.getContext('2d'), w = profile.width, h = profile.height;
-  ctx.clearRect(0, 0, w, h);
-  const vals = row.filter(finite), lo = Math.min(...vals), hi = Math.max(...vals);
-  ctx.strokeStyle = '#7a3b12'; ctx.lineWidth = 1.5; ctx.beginPath(); let pen = false;
-  row.forEach((v, i) => { if (!finite(v)) { pen = false; return; }
-    const x = 40 + i * (w - 50) / (row.length - 1), y = h - 25 - (v - lo) / ((hi - lo) || 1) * (h - 40);
-    if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y); pen = true; });
-  ctx.stroke(); ctx.fillStyle = '#333';
-  ctx.fillText((hi - lo).toFixed(1) + ' um range', 45, 12);
-  document.getElementById('rowlabel').textContent = (slider.value * grid.dx / 1000).toFixed(2) + ' mm';
-}
-slider.max = grid.z.length - 1; slider.value = Math.floor(grid.z.length / 2);
-slider.addEventListener('input', drawProfile); drawProfile();
-// 3-D view: shaded quads, painter's algorithm on a 2-D canvas; drag to turn.
-const view = document.getElementById('view3d'); let yaw = 0.6, pitch = 0.9, drag = null;
-function draw3d() {
-  const grid = Object.assign({}, all.mesh, {exaggeration: all.exaggeration, size: all.size, mid: all.mid});
-  const ctx = view.getContext('2d'), W = view.width, H = view.height, z = grid.z;
-  const n = z.length, m = z[0].length, zs = grid.exaggeration, quads = [];
-  const cy = Math.cos(yaw), sy = Math.sin(yaw), cp = Math.cos(pitch), sp = Math.sin(pitch);
-  const sx = grid.dx / grid.size, sz = grid.dy / grid.size;
-  function project(i, j) { const x = (j - m / 2) * sx, y = (i - n / 2) * sz, h = (z[i][j] - grid.mid) * zs / grid.size;
-    const X = x * cy - y * sy, Y = x * sy + y * cy; return [X, Y * cp - h * sp, Y * sp + h * cp]; }
-  for (let i = 0; i < n - 1; i++) for (let j = 0; j < m - 1; j++) {
-    if (![z[i][j], z[i + 1][j], z[i][j + 1], z[i + 1][j + 1]].every(finite)) continue;
-    const p = [project(i, j), project(i, j + 1), project(i + 1, j + 1), project(i + 1, j)];
-    const gx = (z[i][j + 1] - z[i][j]) * zs / grid.size / sx, gy = (z[i + 1][j] - z[i][j]) * zs / grid.size / sz;
-    const shade = Math.max(0.15, (0.5 - 0.5 * gx + 0.5 * gy + 0.7) / Math.sqrt(gx * gx + gy * gy + 1) / 1.35);
-    quads.push([p[0][2] + p[2][2], p, shade]); }
-  quads.sort((a, b) => a[0] - b[0]); ctx.clearRect(0, 0, W, H); const k = 0.8 * Math.min(W, H);
-  for (const [_, p, s] of quads) { ctx.fillStyle = `rgb(${Math.round(230 * s)},${Math.round(170 * s)},${Math.round(130 * s)})`;
-    ctx.beginPath(); p.forEach((q, t) => { const x = W / 2 + q[0] * k, y = H / 2 + q[1] * k; t ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
-    ctx.closePath(); ctx.fill(); }
-}
-view.addEventListener('mousedown', e => drag = [e.clientX, e.clientY, yaw, pitch]);
-window.addEventListener('mouseup', () => drag = null);
-window.addEventListener('mousemove', e => { if (!drag) return; yaw = drag[2] + (e.clientX - drag[0]) / 150;
-  pitch = Math.min(1.5, Math.max(0.1, drag[3] + (e.clientY - drag[1]) / 150)); draw3d(); });
-draw3d();
-"""
-
-_BASE_STYLE = """
-body { font-family: sans-serif; margin: 2em; color: #222; max-width: 1100px; }
-h1 { font-size: 1.5em; } h2 { font-size: 1.2em; border-bottom: 1px solid #ccc; margin-top: 2em; }
-table { border-collapse: collapse; margin: 0.5em 0; font-size: 0.9em; }
-td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; } th { background: #f3f3f3; }
-td:first-child { text-align: left; } .missing { color: #999; font-style: italic; }
-img { max-width: 100%; } .note { color: #555; font-size: 0.9em; }
-@media (max-width: 600px) { body { margin: 0.5em; } }
-"""
-_STYLE = """
-.pair { display: flex; gap: 1em; flex-wrap: wrap; } .pair img { max-width: 48%; }
-canvas { border: 1px solid #ddd; max-width: 100%; }
-"""
 
 
 def _float32_base64(values):
@@ -250,77 +174,69 @@ def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(
     ``evaluations`` {height map name: evaluation dict} when ground truth exists, with
     ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
     and options, shown as given (escaped)."""
-    sections = [f"<h1>{html.escape(title)}</h1>"]
     field_mm = (height.shape[1] * height.spacing[1] / 1000, height.shape[0] * height.spacing[0] / 1000)
-    sections.append(f"<p class=note>Field {field_mm[0]:.2f} x {field_mm[1]:.2f} mm, {height.shape[1]} x {height.shape[0]} pixels of "
-                    f"{height.spacing[1]:g} um; {100 * (1 - height.mask.mean()):.1f}% of the points missing (shown grey). "
-                    "Heights in micrometres, positive toward the camera.</p>")
-    images = [f"<img alt='shaded height map' src='data:image/png;base64,{shaded_height_png(height)}'>"]
+    surface_images = [("shaded height map", shaded_height_png(height))]
     if albedo is not None:
-        images.append(f"<img alt='albedo' src='data:image/png;base64,{image_png(albedo, 'albedo (relative)', height.spacing)}'>")
-    sections.append("<h2>Surface</h2><div class=pair>" + "".join(images) + "</div>")
-
+        surface_images.append(("albedo", image_png(albedo, "albedo (relative)", height.spacing)))
     z, step = _decimate(np.asarray(height.z, float), MESH_CELLS)
     profile_z, profile_step = _decimate(np.asarray(height.z, float), PROFILE_POINTS)
     finite_z = z[np.isfinite(z)]
     span = float(np.ptp(finite_z)) if finite_z.size else 1.0
     size = max(field_mm) * 1000
+    exaggeration = 0.25 * size / max(span, 1e-9)
     grid = {  # profiles along image columns: "z" holds one row per column
         "z": _float32_base64(profile_z.T), "shape": profile_z.T.shape,
         "dx": height.spacing[1] * profile_step, "dy": height.spacing[0] * profile_step,
     }
     mesh = {"z": _float32_base64(z), "shape": z.shape, "dx": height.spacing[1] * step, "dy": height.spacing[0] * step}
-    sections.append(
-        "<h2>3-D view</h2><p class=note>Drag to turn. Heights exaggerated "
-        f"{0.25 * size / max(span, 1e-9):.1f} x; downsampled for display only.</p>"
-        "<canvas id=view3d width=700 height=500></canvas>"
-        "<h2>Cross-section</h2><p class=note>Vertical profile (top to bottom) at x = <span id=rowlabel></span>; move the slider to choose it.</p>"
-        "<input type=range id=row min=0 step=1 style='width:700px'><br><canvas id=profile width=700 height=220></canvas>"
-    )
-    if wrinkles is not None:
-        rows = [[w.id, w.length_mm, w.orientation_deg, w.mean_depth_um, w.max_depth_um, w.mean_width_mm, w.cross_section_mm2, w.volume_mm3, w.severity]
-                for w in wrinkles.wrinkles]
-        totals = wrinkles.totals
-        sections.append(
-            "<h2>Wrinkles</h2>"
-            f"<img alt='wrinkle overlay' src='data:image/png;base64,{wrinkle_overlay_png(height, wrinkles)}'>"
-            + _table(["id", "length (mm)", "orientation (deg)", "mean depth (um)", "max depth (um)", "width at half depth (mm)",
-                      "cross-section (mm2)", "volume (mm3)", "severity"], rows)
-            + f"<p class=note>{totals['count']} wrinkle(s), total length {totals['total_length_mm']:.2f} mm, "
-            f"wrinkle area {100 * totals['area_fraction']:.1f}% of the field. Depths against the local surrounding skin level; "
-            "severity = mean depth x length / 100 (a ranking aid, not a clinical scale).</p>"
-        )
-    if parameters:
-        sections.append("<h2>Surface texture (ISO 25178-2) and fractal dimension</h2>"
-                        + _table(["parameter", "value", "unit", "standard / method"], [[p.name, p.value, p.unit, p.reference] for p in parameters]))
-    if fractal_results:
-        sections.append(f"<img alt='fractal log-log plot' src='data:image/png;base64,{fractal_png(fractal_results)}'>")
-    if evaluations:
-        names = list(evaluations)
-        sections.append(
-            "<h2>Against the ground truth (the paper's Tables 1 and 2)</h2>"
-            + _table(["height map", "RMS height error (um)", "in wrinkles (um)", "L2 normal error", "mean angle (deg)"],
-                     [[n, evaluations[n]["rms_height_error_um"], evaluations[n].get("rms_height_error_in_wrinkles_um"),
-                       evaluations[n]["l2_normal_error"], evaluations[n]["mean_angular_error_deg"]] for n in names])
-            + "".join(f"<img alt='cross-section' src='data:image/png;base64,{png}'>" for png in cross_sections)
-        )
-    if settings:
-        sections.append("<h2>Inputs and settings</h2>" + _table(["setting", "value"], [[k, json.dumps(v, default=str)] for k, v in settings.items()]))
-    payload = json.dumps(grid | {"mesh": mesh, "exaggeration": 0.25 * size / max(span, 1e-9), "size": size,
+    payload = json.dumps(grid | {"mesh": mesh, "exaggeration": exaggeration, "size": size,
                                  "mid": float(np.median(finite_z)) if finite_z.size else 0.0})
-    # JSON inside <script type=application/json>: escape '<' so no '</script>' can close it.
-    payload = payload.replace("<", "\\u003c")
-    return html_page(title, "".join(sections) + f"<script id=grid type='application/json'>{payload}</script>", style=_STYLE, script=_SCRIPT)
+    context = {
+        "title": title, "field_mm": field_mm, "shape": height.shape, "pixel_um": height.spacing[1],
+        "missing_percent": 100 * (1 - height.mask.mean()), "surface_images": surface_images, "exaggeration": exaggeration,
+        "wrinkles": wrinkles.totals if wrinkles is not None else None,
+        "wrinkle_overlay": wrinkle_overlay_png(height, wrinkles) if wrinkles is not None else None,
+        "wrinkle_rows": [[w.id, w.length_mm, w.orientation_deg, w.mean_depth_um, w.max_depth_um, w.mean_width_mm, w.cross_section_mm2,
+                          w.volume_mm3, w.severity] for w in (wrinkles.wrinkles if wrinkles is not None else ())],
+        "parameter_rows": [[p.name, p.value, p.unit, p.reference] for p in parameters],
+        "fractal_plot": fractal_png(fractal_results) if fractal_results else None,
+        "evaluation_rows": [[n, e["rms_height_error_um"], e.get("rms_height_error_in_wrinkles_um"), e["l2_normal_error"],
+                             e["mean_angular_error_deg"]] for n, e in (evaluations or {}).items()],
+        "cross_sections": cross_sections,
+        "settings_rows": [[k, json.dumps(v, default=str)] for k, v in (settings or {}).items()],
+        # JSON inside <script type=application/json> is raw text: escape '<' so no '</script>' can close it.
+        "payload": Markup(payload.replace("<", "\\u003c")),
+    }
+    return render_page("report.html", context, style="report.css", script="report.js")
 
 
-def html_page(title, body, *, style="", script=None):
-    """One self-contained HTML page: a Content-Security-Policy that lets it load nothing
-    from anywhere (images only as data: URIs, inline style and, when given, inline script),
-    so a patient's report never contacts a server."""
-    policy = "default-src 'none'; img-src data:; style-src 'unsafe-inline'" + ("; script-src 'unsafe-inline'" if script else "")
-    return (
-        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8><meta name=viewport content='width=device-width, initial-scale=1'>"
-        f"<meta http-equiv='Content-Security-Policy' content=\"{policy}\">"
-        f"<title>{html.escape(title)}</title><style>{_BASE_STYLE}{style}</style></head><body>"
-        + body + (f"<script>{script}</script>" if script else "") + "</body></html>"
-    )
+@functools.cache
+def _environment():
+    """The page templates (``skintopo/templates``), autoescaped."""
+    import jinja2
+
+    environment = jinja2.Environment(loader=jinja2.PackageLoader("skintopo", "templates"), autoescape=True,
+                                     undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    environment.filters["cell"] = _cell
+    return environment
+
+
+def _cell(value):
+    """A table cell: numbers to 5 significant digits, missing values marked as such."""
+    if value is None or (isinstance(value, float) and not np.isfinite(value)):
+        return Markup("<span class=missing>missing</span>")
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.5g}"
+    return str(value)
+
+
+def _resource(name):
+    return Markup(importlib.resources.files("skintopo").joinpath("templates", name).read_text(encoding="utf-8"))
+
+
+def render_page(template, context, *, style=None, script=None):
+    """One self-contained HTML page from ``template`` (which extends ``base.html``: the
+    security header that lets the page load nothing from anywhere), with the shared style,
+    the page's own style and script files from the same folder."""
+    return _environment().get_template(template).render(
+        base_style=_resource("base.css"), style=_resource(style) if style else "", script=_resource(script) if script else None, **context)

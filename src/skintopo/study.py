@@ -22,7 +22,6 @@ of the pair only is counted in ``unpaired_subjects`` and named on the page.
 from __future__ import annotations
 
 import base64
-import html
 import io
 import re
 
@@ -147,44 +146,21 @@ def summary_html(long, changes, statistics, failures, reports):
     """The study's summary page: one self-contained HTML file (no remote resources).
 
     ``reports`` maps (subject, region, visit) to the relative link of that item's report."""
-    from skintopo.report import html_page
+    from skintopo.report import render_page
 
-    esc = html.escape
-    subjects, visits = long.subject.nunique(), list(dict.fromkeys(long.visit))
-    parts = [f"<h1>Study summary</h1><p class=note>{subjects} subject(s), visits {esc(', '.join(map(str, visits))) or 'none'}, "
-             f"{len(reports)} measurement(s), {len(failures)} failure(s). Changes are follow-up minus baseline, measured on the "
-             "registered overlap of the two visits.</p>"]
-    parts.append("<h2>Change between visits</h2>")
-    if statistics.empty:
-        parts.append("<p>No follow-up was compared with its baseline yet.</p>")
-    else:
-        main = statistics[statistics.parameter.isin(PLOTTED) | statistics.parameter.str.match(r"^(S[a-z]{1,2}|V[mv][pcv]|D_)")]
-        rows = []
-        for r in main.itertuples():
-            unit = _unit_label(r.unit)
-            ci = f"{_number(r.ci95_low)} to {_number(r.ci95_high)}" if np.isfinite(r.ci95_low) else "— (fewer than 2 subjects)"
-            limit = (f"{_number(r.detection_limit)} ({r.fraction_beyond_limit:.0%} beyond)" if np.isfinite(r.detection_limit)
-                     else "— (no repeat captures)")
-            note = f"{r.unpaired_subjects} unpaired subject(s) left out" if (r.unpaired_subjects or 0) > 0 else ""
-            rows.append([f"{esc(str(r.baseline_visit))} → {esc(str(r.visit))}", esc(str(r.region)), esc(readable_name(r.parameter)),
-                         esc(unit), str(r.subjects), _number(r.mean_change), ci, _number(r.mean_change_percent, 3),
-                         _number(r.t_p_value, 3), _number(r.wilcoxon_p_value, 3), limit, note])
-        header = ["visits", "region", "parameter", "unit", "subjects", "mean change", "95% CI", "mean change %", "p (paired t)",
-                  "p (Wilcoxon)", "detection limit r", "note"]
-        parts.append("<div class=scroll><table><tr>" + "".join(f"<th>{h}</th>" for h in header) + "</tr>"
-                     + "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows) + "</table></div>")
-        parts.append("<p class=note>95% CI: t interval of the mean paired change. Detection limit r = 2.8 s_r (ISO 5725-6 "
-                     "repeatability limit) from repeat captures; every parameter is in <code>statistics.csv</code>.</p>")
-    pictures = _paired_plots(long)
-    if pictures:
-        parts.append("<h2>Each subject across visits</h2><div class=grid>"
-                     + "".join(f"<img alt='{esc(readable_name(n))} per subject and visit' src='data:image/png;base64,{p}'>" for n, p in pictures)
-                     + "</div>")
-    parts.append("<h2>Measurements</h2><table><tr><th>subject</th><th>region</th><th>visit</th><th>report</th></tr>"
-                 + "".join(f"<tr><td>{esc(s)}</td><td>{esc(g)}</td><td>{esc(v)}</td><td><a href='{esc(link)}'>report</a></td></tr>"
-                           for (s, g, v), link in sorted(reports.items())) + "</table>")
-    failed = "".join(f"<li>{esc(f'{r.subject} {r.visit} {r.region} ({r.step}): {r.error}')}</li>" for r in failures.itertuples())
-    parts.append(f"<h2>Failures</h2><ul>{failed or '<li>none</li>'}</ul>")
-    style = (".grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(300px,1fr));gap:1em} .grid img{width:100%}"
-             ".scroll{overflow-x:auto} th{position:sticky;top:0;background:#f4f4f4}")
-    return html_page("skintopo study summary", "".join(parts), style=style)
+    rows = []
+    main = statistics[statistics.parameter.isin(PLOTTED) | statistics.parameter.str.match(r"^(S[a-z]{1,2}|V[mv][pcv]|D_)")]
+    for r in main.itertuples():
+        ci = f"{_number(r.ci95_low)} to {_number(r.ci95_high)}" if np.isfinite(r.ci95_low) else "— (fewer than 2 subjects)"
+        limit = (f"{_number(r.detection_limit)} ({r.fraction_beyond_limit:.0%} beyond)" if np.isfinite(r.detection_limit)
+                 else "— (no repeat captures)")
+        note = f"{r.unpaired_subjects} unpaired subject(s) left out" if (r.unpaired_subjects or 0) > 0 else ""
+        rows.append([f"{r.baseline_visit} → {r.visit}", r.region, readable_name(r.parameter), _unit_label(r.unit), r.subjects,
+                     _number(r.mean_change), ci, _number(r.mean_change_percent, 3), _number(r.t_p_value, 3), _number(r.wilcoxon_p_value, 3),
+                     limit, note])
+    context = {
+        "title": "skintopo study summary", "subjects": long.subject.nunique(), "visits": [str(v) for v in dict.fromkeys(long.visit)],
+        "statistics_rows": rows, "pictures": [(f"{readable_name(n)} per subject and visit", p) for n, p in _paired_plots(long)],
+        "reports": sorted(reports.items()), "failures": list(failures.itertuples()),
+    }
+    return render_page("study.html", context, style="study.css")
