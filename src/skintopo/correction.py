@@ -35,7 +35,7 @@ import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_slopes, normals_to_gradients
-from skintopo.heightmap import HeightMap
+from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.segmentation import WrinkleSegmentation, segment_wrinkles
 
 METHODS = ("paper", "feathered")
@@ -90,7 +90,7 @@ def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_ME
     if method == "paper":
         weight = wrinkle_mask.astype(float)
     else:
-        dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
+        dy, dx = pixel_spacing(spacing)
         sigma = (feather_um / 2 / dy, feather_um / 2 / dx)
         weight = np.maximum(wrinkle_mask, scipy.ndimage.gaussian_filter(wrinkle_mask.astype(float), sigma) * 2).clip(0, 1)
         weight[wrinkle_mask] = 1.0

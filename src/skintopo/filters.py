@@ -34,7 +34,7 @@ import scipy.ndimage
 
 from skintopo._linalg import solve_symmetric_3x3
 from skintopo.errors import SkinTopoError
-from skintopo.heightmap import HeightMap
+from skintopo.heightmap import HeightMap, pixel_spacing
 
 ALPHA = np.sqrt(np.log(2) / np.pi)
 _TRUNCATE = 4.0  # kernel half-width in standard deviations (transmission error < 1e-3)
@@ -104,7 +104,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
         raise SkinTopoError(f"expected a 2-D height map, got shape {z.shape}")
     if not (cutoff_um > 0):
         raise SkinTopoError(f"cut-off must be positive, got {cutoff_um} um")
-    dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
+    dy, dx = pixel_spacing(spacing)
     sigmas = (gaussian_sigma_px(cutoff_um, dy), gaussian_sigma_px(cutoff_um, dx))
     valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
     if not valid.any():
@@ -216,7 +216,7 @@ def block_mean(image, factor):
 def line_segment_footprint(length_um, angle_deg, spacing):
     """Digital line segment (boolean footprint, centrally symmetric) of physical length
     ``length_um`` at ``angle_deg`` counter-clockwise from +x (x right, y up; rows run down)."""
-    dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
+    dy, dx = pixel_spacing(spacing)
     theta = np.radians(angle_deg)
     half_columns = 0.5 * length_um * np.cos(theta) / dx
     half_rows = -0.5 * length_um * np.sin(theta) / dy

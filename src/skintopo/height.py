@@ -32,7 +32,7 @@ import scipy.ndimage
 import scipy.sparse
 
 from skintopo.errors import SkinTopoError
-from skintopo.heightmap import HeightMap
+from skintopo.heightmap import HeightMap, pixel_spacing
 
 MIN_NZ = 1e-3  # normals more grazing than ~89.9 degrees give no usable gradient
 _WORKERS = -1  # scipy.fft: use every core
@@ -63,20 +63,13 @@ def normals_to_gradients(normals):
     return p, q
 
 
-def _spacing(spacing):
-    dy, dx = (spacing, spacing) if np.isscalar(spacing) else spacing
-    if not (dx > 0 and dy > 0):
-        raise SkinTopoError(f"pixel spacing must be positive, got {spacing!r}")
-    return float(dy), float(dx)
-
-
 def _array_gradients(p, q, spacing):
     """Height change per pixel step along columns and rows: (p dx, -q dy)."""
     p = np.asarray(p, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64)
     if p.shape != q.shape or p.ndim != 2:
         raise SkinTopoError(f"p and q must be 2-D arrays of one shape, got {p.shape} and {q.shape}")
-    dy, dx = _spacing(spacing)
+    dy, dx = pixel_spacing(spacing)
     return p * dx, -q * dy
 
 

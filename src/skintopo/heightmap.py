@@ -15,6 +15,19 @@ from skintopo.errors import SkinTopoError
 
 
 
+def pixel_spacing(spacing):
+    """(dy, dx) in micrometres from one value (square pixels) or a pair; both finite and
+    positive, else a clear error. Every function that takes a spacing goes through here."""
+    pair = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)
+    try:
+        pair = tuple(float(value) for value in pair)
+    except (TypeError, ValueError):
+        pair = ()
+    if len(pair) != 2 or not all(np.isfinite(value) and value > 0 for value in pair):
+        raise SkinTopoError(f"pixel spacing must be one or two positive micrometre values, got {spacing!r}")
+    return pair
+
+
 def _frozen(array):
     """The array, made read-only (callers pass arrays they have just created, never the
     caller's own: the inputs are copied, not locked)."""
@@ -51,12 +64,7 @@ class HeightMap:
         z = np.asarray(self.z, dtype=np.float64)
         if z.ndim != 2 or min(z.shape) < 1:
             raise SkinTopoError(f"a height map must be a 2-D array, got shape {z.shape}")
-        spacing = self.spacing
-        if np.isscalar(spacing):
-            spacing = (spacing, spacing)
-        spacing = tuple(float(s) for s in spacing)
-        if len(spacing) != 2 or not all(np.isfinite(s) and s > 0 for s in spacing):
-            raise SkinTopoError(f"pixel spacing must be two positive micrometre values, got {self.spacing!r}")
+        spacing = pixel_spacing(self.spacing)
         mask = np.isfinite(z) if self.mask is None else np.asarray(self.mask, dtype=bool)
         if mask.shape != z.shape:
             raise SkinTopoError(f"mask shape {mask.shape} differs from height map shape {z.shape}")

@@ -24,6 +24,17 @@ MESH_CELLS = 90
 PROFILE_POINTS = 400
 
 
+@functools.cache
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (set once; figures are never shown)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot
+
+    return matplotlib.pyplot
+
+
 def _png(figure):
     import matplotlib.pyplot as plt
 
@@ -39,10 +50,7 @@ def _decimate(array, limit):
 
 
 def shaded_height_png(height, title="height"):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import LightSource
 
     z, step = _decimate(height.z, DISPLAY_PIXELS)
@@ -60,10 +68,7 @@ def shaded_height_png(height, title="height"):
 
 
 def image_png(values, title, spacing, cmap="gray"):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     data, _ = _decimate(np.asarray(values, float), DISPLAY_PIXELS)
     rows, columns = np.asarray(values).shape
@@ -77,10 +82,7 @@ def image_png(values, title, spacing, cmap="gray"):
 
 def wrinkle_overlay_png(height, measures):
     """Shaded height with the wrinkles' half-depth regions, centre lines and ids."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.colors import LightSource
 
     z = np.where(height.mask, height.z, np.nanmedian(height.z))
@@ -112,10 +114,7 @@ _BAND_COLOURS = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue", "wh
 def cross_section_pngs(heights, truth, wrinkle_labels, *, title=""):
     """The paper's Figures 3 and 5: a cross-section across the deepest true wrinkle, per band
     against the ground truth, and the algorithm (with red) against it. Returns two base64 PNGs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     from skintopo.evaluation import cross_section_line, wrinkle_max_depths
     from skintopo.filters import extract_profile
@@ -143,10 +142,7 @@ def cross_section_pngs(heights, truth, wrinkle_labels, *, title=""):
 
 
 def fractal_png(results):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     figure, axes = plt.subplots(figsize=(6, 4))
     for result in results:

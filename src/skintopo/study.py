@@ -111,10 +111,9 @@ def _png(figure):
 
 def _paired_plots(long):
     """One small figure per plotted parameter: visits on x, one line per subject."""
-    import matplotlib
+    from skintopo.report import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     pictures = []
     for name in PLOTTED:

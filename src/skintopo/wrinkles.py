@@ -80,11 +80,11 @@ from skintopo.filters import (
     polynomial_form,
 )
 from skintopo.heightmap import HeightMap
-from skintopo.segmentation import WrinkleSegmentation
+from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, REFERENCE_SHORT_CUTOFF_UM, WrinkleSegmentation
 
-DEFAULT_SHORT_CUTOFF_UM = 250.0
-DEFAULT_REFERENCE_CUTOFF_UM = 2500.0
-DEFAULT_MARGIN_UM = 150.0
+DEFAULT_SHORT_CUTOFF_UM = REFERENCE_SHORT_CUTOFF_UM  # the depth's S-filter (not the segmentation's band-pass lambda_s)
+DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
+DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 DEFAULT_FURROW_CLOSING_UM = 200.0
 DEFAULT_ALONG_CLOSING_UM = 500.0
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)

@@ -330,14 +330,6 @@ def _angle_bins(shape, spacing, angle_step):
     return bins.ravel(), weights.ravel(), count
 
 
-def texture_direction(height: HeightMap, *, angle_step=0.5):
-    """Std: the angle (degrees, counter-clockwise from +x, y up, in [0, 180)) of the largest
-    angular amplitude density of the 2-D Fourier transform of the mean-removed heights.
-    A lay of parallel grooves along direction theta has its spectrum along theta + 90 degrees;
-    Std reports the direction of that spectral maximum, as ISO 25178-2 §4.3.4 defines it."""
-    return _texture_direction(_mean_removed(height), height.spacing, angle_step)
-
-
 def _texture_direction(z, spacing, angle_step=0.5):
     bins, weights, count = _angle_bins(z.shape, tuple(spacing), angle_step)
     amplitude = np.abs(scipy.fft.rfft2(z)).ravel()

@@ -55,7 +55,6 @@ from skintopo.heightmap import HeightMap
 from skintopo.texture.areal import row_blocks
 
 METHODS = ("partitioning", "cube-counting", "triangulation", "power-spectrum")
-VARIANTS = ("power-spectrum-areal",)
 RESAMPLED_METHODS = ("partitioning", "cube-counting", "triangulation")  # work on resample_for_fractal's field
 MIN_COLUMNS = 8
 
