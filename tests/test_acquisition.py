@@ -205,3 +205,18 @@ def test_saturated_pixels_are_marked(lambertian_acquisition):
     write_png(folder / "red_00.png", image)
     images = load_acquisition(folder, bands=["red"]).bands["red"].images
     assert np.isnan(images[0, :3, :3]).all() and np.isfinite(images[1:]).all()
+
+
+def test_srgb_encoded_images_are_decoded_by_the_standard_curve(tmp_path):
+    """IEC 61966-2-1: linear = V / 12.92 for V <= 0.04045, else ((V + 0.055) / 1.055)^2.4.
+    Reference points: V = 0.5 -> 0.21404, V = 0.04045 -> 0.0031308, V = 1 -> 1."""
+    lights = [[0.6, 0, 0.8], [0, 0.6, 0.8], [-0.6, 0, 0.8], [0, -0.6, 0.8]]
+    codes = np.array([[0, 2651, 32768, 65535]], dtype=np.uint16)  # 2651 / 65535 = 0.04045
+    entries = []
+    for i, light in enumerate(lights):
+        write_png(tmp_path / f"g{i}.png", codes)
+        entries.append({"file": f"g{i}.png", "band": "green", "light": light})
+    manifest = {"format": "skintopo-acquisition", "version": 1, "pixel_size_um": 5, "gamma": "srgb", "images": entries}
+    (tmp_path / "acquisition.json").write_text(json.dumps(manifest))
+    decoded = load_acquisition(tmp_path, saturation=1.01).bands["green"].images[0, 0]
+    np.testing.assert_allclose(decoded, [0.0, 0.0031308, 0.21404, 1.0], rtol=2e-4, atol=1e-7)

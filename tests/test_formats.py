@@ -96,3 +96,17 @@ def test_png_channels_are_in_rgb_order_and_read_image_drops_alpha(tmp_path):
     (tmp_path / "broken.png").write_bytes(png[:30])
     with pytest.raises(SkinTopoError, match="broken.png: not a readable PNG"):
         read_image(tmp_path / "broken.png")
+
+
+def test_mesh_keeps_the_map_upright_in_millimetres(tmp_path):
+    """Row 0 is the top of the map, y up: a peak at row 5, column 30 lies at x = 30 dx,
+    y = -5 dy (mm), and the mesh spans y from -(rows - 1) dy to 0."""
+    import trimesh
+
+    z = np.zeros((30, 40))
+    z[5, 30] = 50.0
+    HeightMap(z, (12.5, 10.0)).save(tmp_path / "peak.ply")
+    mesh = trimesh.load(tmp_path / "peak.ply")
+    top = mesh.vertices[np.argmax(mesh.vertices[:, 2])]
+    np.testing.assert_allclose(top, [30 * 10.0e-3, -5 * 12.5e-3, 50.0e-3], atol=1e-9)
+    np.testing.assert_allclose(mesh.bounds, [[0, -29 * 12.5e-3, 0], [39 * 10.0e-3, 0, 50.0e-3]], atol=1e-9)

@@ -204,3 +204,24 @@ def test_robust_solver_on_translucent_skin_stays_with_least_squares():
                   for solver in ("least-squares", "robust")]
         print(band, errors)
         assert errors[1] <= errors[0] + 0.15, band
+
+
+def test_residual_is_the_rms_over_the_observations_used():
+    """With saturated observations left out, the residual is sqrt(sum over the used lights of
+    (I_i - g . s_i)^2 / number used), computed here independently per pixel."""
+    rng = np.random.default_rng(11)
+    z, p, q = plane_and_bump(shape=(12, 15))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    slant = np.radians(np.repeat([25.0, 45.0], 4))
+    tilt = np.radians(np.arange(8) * 45.0)
+    lights = np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
+    images = (render_lambertian(truth, 0.5, lights) + rng.normal(0, 0.01, (8, 12, 15))).astype(np.float32)
+    images[0, :6] = np.nan  # saturated in the top half: 7 of 8 used there
+    images[3, :, :5] = np.nan
+    result = photometric_stereo(images, lights, shadow_fraction=0.0)
+    for (r, c), used in np.ndenumerate(result.lights_used):
+        keep = np.isfinite(images[:, r, c])
+        assert used == keep.sum()
+        g, *_ = np.linalg.lstsq(lights[keep], images[keep, r, c].astype(float), rcond=None)
+        expected = np.sqrt(np.mean((images[keep, r, c] - lights[keep] @ g) ** 2))
+        assert result.residual[r, c] == pytest.approx(expected, rel=1e-3)

@@ -109,3 +109,23 @@ def test_wrinkles_command(tmp_path, capsys):
     assert main(["wrinkles", str(tmp_path / "flat.x3p"), "-o", str(tmp_path / "none")]) == 0
     assert "no wrinkles found" in capsys.readouterr().out
     assert json.loads((tmp_path / "none" / "wrinkles.json").read_text())["totals"]["count"] == 0
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0, 135.0])
+def test_orientation_centroid_and_severity_of_a_known_straight_wrinkle(angle):
+    """One straight wrinkle at a known angle (counter-clockwise from +x, y up) and position on
+    smooth skin: orientation within 2 degrees (as an axial angle), centroid within 0.1 mm,
+    severity = mean depth x length / 100 by definition."""
+    from skintopo.synth.surfaces import SurfaceSpec, Wrinkle
+
+    wrinkle = Wrinkle(depth_um=120.0, width_um=500.0, length_um=3500.0, orientation_deg=angle, centre_um=(300.0, -200.0), shape="U")
+    spec = SurfaceSpec(size_px=(256, 256), pixel_um=20.0, wrinkles=(wrinkle,), microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
+    surface = make_surface(spec, seed=0)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    assert len(measures.wrinkles) == 1
+    w = measures.wrinkles[0]
+    difference = (w.orientation_deg - angle + 90) % 180 - 90
+    assert abs(difference) < 2.0 and 0 <= w.orientation_deg < 180
+    centre_x_mm, centre_y_mm = (2560 + 300) / 1000, (2560 + 200) / 1000  # image coordinates: x right, rows down from the top
+    assert w.centroid_x_mm == pytest.approx(centre_x_mm, abs=0.1) and w.centroid_y_mm == pytest.approx(centre_y_mm, abs=0.1)
+    assert w.severity == pytest.approx(w.mean_depth_um * w.length_mm / 100, rel=1e-12)

@@ -61,6 +61,24 @@ def combined_slopes(slopes):
     return (slopes["red"] + (slopes["green"] + slopes["blue"]) / 2) / 2
 
 
+def substitution_weight(wrinkle_mask, spacing, *, method=DEFAULT_METHOD, feather_um=DEFAULT_FEATHER_UM):
+    """Weight w of the combined slopes T: G = (1 - w) red + w T.
+
+    ``paper``: w = 1 on the wrinkle pixels, 0 elsewhere. ``feathered``: w = 1 on the wrinkle,
+    and outside it w = min(1, 2 (G_sigma * mask)), sigma = ``feather_um`` / 2, which is 1 at
+    the border and falls smoothly to 0 (for a straight border at distance d, w = 2 Phi(-d /
+    sigma), Phi the standard normal distribution function).
+    """
+    wrinkle_mask = np.asarray(wrinkle_mask, dtype=bool)
+    if method == "paper":
+        return wrinkle_mask.astype(float)
+    dy, dx = pixel_spacing(spacing)
+    sigma = (feather_um / 2 / dy, feather_um / 2 / dx)
+    weight = np.maximum(wrinkle_mask, scipy.ndimage.gaussian_filter(wrinkle_mask.astype(float), sigma) * 2).clip(0, 1)
+    weight[wrinkle_mask] = 1.0
+    return weight
+
+
 def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_METHOD, feather_um=DEFAULT_FEATHER_UM,
                    integrator=DEFAULT_INTEGRATOR, mask=None):
     """The correction on slope fields.
@@ -87,13 +105,7 @@ def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_ME
     p = {"red": red[0], "green": green[0], "blue": blue[0]}
     q = {"red": red[1], "green": green[1], "blue": blue[1]}
     t1, t2 = combined_slopes(p), combined_slopes(q)
-    if method == "paper":
-        weight = wrinkle_mask.astype(float)
-    else:
-        dy, dx = pixel_spacing(spacing)
-        sigma = (feather_um / 2 / dy, feather_um / 2 / dx)
-        weight = np.maximum(wrinkle_mask, scipy.ndimage.gaussian_filter(wrinkle_mask.astype(float), sigma) * 2).clip(0, 1)
-        weight[wrinkle_mask] = 1.0
+    weight = substitution_weight(wrinkle_mask, spacing, method=method, feather_um=feather_um)
     g1 = (1 - weight) * p["red"] + weight * t1
     g2 = (1 - weight) * q["red"] + weight * t2
     valid = np.isfinite(g1) & np.isfinite(g2) & np.isfinite(p["red"]) & np.isfinite(q["red"])
