@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skintopo.acquisition import check_light_directions
+from skintopo.lights import check_light_directions
 from skintopo._linalg import solve_symmetric_3x3
 from skintopo.errors import SkinTopoError
 

@@ -1,0 +1,108 @@
+"""The data model of one capture: constants, :class:`BandImages` and :class:`Acquisition`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.errors import AcquisitionError
+
+
+MANIFEST_NAME = "acquisition.json"
+
+
+FORMAT_NAME = "skintopo-acquisition"
+
+
+FORMAT_VERSION = 1
+
+
+BANDS = ("red", "green", "blue", "white")
+
+
+DEFAULT_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0, "white": None}
+
+
+CHANNEL_INDEX = {"red": 0, "green": 1, "blue": 2}
+
+
+CHANNELS = ("red", "green", "blue", "mean")
+
+
+DEFAULT_SATURATION = 0.995
+
+
+@dataclass(frozen=True, eq=False)
+class BandImages:
+    """The images of one spectral band.
+
+    Attributes
+    ----------
+    band : str
+        red, green, blue or white.
+    images : ndarray, shape (m, rows, columns), float32
+        Linear intensities as a fraction of the sensor's full scale, divided by each light's
+        relative intensity. NaN marks a saturated observation, which must not be used.
+    lights : ndarray, shape (m, 3)
+        Unit light directions in the camera frame.
+    files : tuple of str
+        The image file of each row of ``images``.
+    wavelength_nm : float or None
+    """
+
+    band: str
+    images: np.ndarray
+    lights: np.ndarray
+    files: tuple
+    wavelength_nm: float | None
+
+
+@dataclass(frozen=True, eq=False)
+class Acquisition:
+    """One validated capture: images per band, the pixel size and the mask.
+
+    Attributes
+    ----------
+    source : Path
+        The folder read.
+    layout : str
+        ``"manifest"`` or ``"diligent"``.
+    bands : dict of str to BandImages
+    pixel_um : float
+        Pixel size in micrometres.
+    pixel_um_assumed : bool
+        True when the folder carries no pixel size and a default was used.
+    mask : ndarray of bool, shape (rows, columns)
+        True where the skin (object) is measured.
+    """
+
+    source: Path
+    layout: str
+    bands: dict
+    pixel_um: float
+    pixel_um_assumed: bool
+    mask: np.ndarray
+
+    @property
+    def shape(self):
+        """Image shape (rows, columns)."""
+        return self.mask.shape
+
+
+def check_bands_requested(source, bands, present):
+    if bands is None:
+        return [b for b in BANDS if b in present]
+    unknown = [b for b in bands if b not in BANDS]
+    if unknown:
+        raise AcquisitionError(source, [f"unknown band(s) {unknown}; choose from {list(BANDS)}"])
+    missing = [b for b in bands if b not in present]
+    if missing:
+        raise AcquisitionError(source, [f"band(s) {missing} not in this acquisition (it has {sorted(present)})"])
+    return list(bands)
+
+
+def positive_number(value):
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0

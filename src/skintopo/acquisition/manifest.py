@@ -1,0 +1,244 @@
+"""The skintopo manifest (``acquisition.json``, format version 1): validation reporting every problem at once, and writing."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.errors import AcquisitionError, SkinTopoError
+from skintopo.formats import write_png
+from skintopo.acquisition.capture import (
+    BANDS,
+    CHANNEL_INDEX,
+    CHANNELS,
+    DEFAULT_WAVELENGTH_NM,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    MANIFEST_NAME,
+    Acquisition,
+    BandImages,
+    check_bands_requested,
+    positive_number,
+)
+from skintopo.acquisition.images import ImageCache, read_mask
+from skintopo.lights import check_light_directions
+from skintopo.acquisition.radiometry import full_scale_of, normalise
+
+
+_IMAGE_KEYS = {"file", "band", "light", "intensity", "wavelength_nm", "channel", "flat"}
+
+
+_MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description", "dark", "crosstalk"}
+
+
+def load_manifest(manifest_path, pixel_um, bands, saturation):
+    folder = manifest_path.parent
+    try:
+        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise AcquisitionError(manifest_path, [f"not valid JSON ({exc})"]) from None
+    problems = []
+    name = manifest_path.name
+    if not isinstance(manifest, dict):
+        raise AcquisitionError(manifest_path, ["the manifest must be a JSON object"])
+    for key in sorted(set(manifest) - _MANIFEST_KEYS):
+        problems.append(f"{name}: unknown field {key!r}")
+    if manifest.get("format") != FORMAT_NAME:
+        problems.append(f"{name}: field 'format' must be {FORMAT_NAME!r}, got {manifest.get('format')!r}")
+    if manifest.get("version") != FORMAT_VERSION:
+        problems.append(f"{name}: field 'version' must be {FORMAT_VERSION} (this reader's format), got {manifest.get('version')!r}")
+    declared_pixel = manifest.get("pixel_size_um")
+    if not positive_number(declared_pixel):
+        problems.append(f"{name}: field 'pixel_size_um' must be a positive number of micrometres, got {declared_pixel!r}")
+    elif pixel_um is not None and not math.isclose(pixel_um, declared_pixel, rel_tol=1e-9):
+        problems.append(f"{name}: pixel_size_um is {declared_pixel} but {pixel_um} was given")
+    gamma = manifest.get("gamma", 1.0)
+    if not (gamma == "srgb" or positive_number(gamma)):
+        problems.append(f"{name}: field 'gamma' must be a positive number or \"srgb\", got {gamma!r}")
+    full_scale = manifest.get("full_scale")
+    if full_scale is not None and not positive_number(full_scale):
+        problems.append(f"{name}: field 'full_scale' must be a positive number, got {full_scale!r}")
+    crosstalk = manifest.get("crosstalk")
+    unmix = None
+    if crosstalk is not None:
+        try:
+            matrix = np.array(crosstalk, dtype=float)
+            unmix = np.linalg.inv(matrix) if matrix.shape == (3, 3) and np.all(np.isfinite(matrix)) else None
+        except (ValueError, TypeError, np.linalg.LinAlgError):
+            unmix = None
+        if unmix is None:
+            problems.append(f"{name}: field 'crosstalk' must be an invertible 3 x 3 matrix (camera channel rows, LED band columns)")
+    dark_file = manifest.get("dark")
+    if dark_file is not None and not (isinstance(dark_file, str) and dark_file):
+        problems.append(f"{name}: field 'dark' must name an image file")
+    entries = manifest.get("images")
+    if not isinstance(entries, list) or not entries:
+        problems.append(f"{name}: field 'images' must be a non-empty list")
+        entries = []
+
+    parsed = []  # (band, file path, light, intensity, wavelength, channel, label)
+    for index, entry in enumerate(entries):
+        label = f"{name}: images[{index}]"
+        if not isinstance(entry, dict):
+            problems.append(f"{label} must be an object")
+            continue
+        file = entry.get("file")
+        if isinstance(file, str) and file:
+            label = f"{name}: images[{index}] ({file})"
+        else:
+            problems.append(f"{label}: field 'file' must name an image file")
+        for key in sorted(set(entry) - _IMAGE_KEYS):
+            problems.append(f"{label}: unknown field {key!r}")
+        if not isinstance(file, str) or not file:
+            continue
+        band = entry.get("band")
+        if band not in BANDS:
+            problems.append(f"{label}: field 'band' must be one of {list(BANDS)}, got {band!r}")
+        light = entry.get("light")
+        if not (isinstance(light, list) and len(light) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in light)):
+            problems.append(f"{label}: field 'light' must be a list of 3 numbers (unit vector x, y, z)")
+            light = None
+        intensity = entry.get("intensity", 1.0)
+        if not positive_number(intensity):
+            problems.append(f"{label}: field 'intensity' must be a positive number, got {intensity!r}")
+        wavelength = entry.get("wavelength_nm", DEFAULT_WAVELENGTH_NM.get(band))
+        if wavelength is not None and not positive_number(wavelength):
+            problems.append(f"{label}: field 'wavelength_nm' must be a positive number, got {wavelength!r}")
+        channel = entry.get("channel")
+        if channel is not None and channel not in CHANNELS:
+            problems.append(f"{label}: field 'channel' must be one of {list(CHANNELS)}, got {channel!r}")
+        flat = entry.get("flat")
+        if flat is not None and not (isinstance(flat, str) and flat):
+            problems.append(f"{label}: field 'flat' must name an image file")
+        elif flat is not None and "intensity" in entry:
+            problems.append(f"{label}: give either 'flat' (the intensity is then measured) or 'intensity', not both")
+        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, None if flat is None else folder / flat))
+
+    if problems:  # structure is wrong: do not read images yet, report what we have
+        raise AcquisitionError(manifest_path, problems)
+
+    present = {p[0] for p in parsed}
+    wanted = check_bands_requested(manifest_path, bands, present)
+    for band in sorted(present):
+        members = [p for p in parsed if p[0] == band]
+        for problem in check_light_directions([p[2] for p in members], [p[6] for p in members]):
+            problems.append(problem if problem.startswith(name) else f"{name}: band {band}: {problem}")
+
+    cache = ImageCache(problems)
+    dark = cache.get(folder / dark_file) if isinstance(dark_file, str) and dark_file else None
+
+    def linear(image, channel, band):
+        """Dark-subtracted, linear, unmixed, one channel; NaN where saturated."""
+        scale = full_scale_of(image.dtype, full_scale)
+        # Normalise before picking the channel, so that a saturated channel makes the mean NaN too.
+        values = normalise(image, scale, saturation, gamma)
+        if dark is not None:
+            values = values - np.nan_to_num(normalise(dark, scale, 2.0, gamma))
+        if values.ndim == 3:
+            if unmix is not None:
+                values = values @ unmix.T.astype(np.float32)
+            channel = channel or ("mean" if band == "white" else band)
+            values = values.mean(axis=2) if channel == "mean" else values[..., CHANNEL_INDEX[channel]]
+        return values
+
+    by_band = {}
+    for band in wanted:
+        members = [p for p in parsed if p[0] == band]
+        images = []
+        for _, file, light, intensity, wavelength, channel, label, flat_file in members:
+            image = cache.get(file)
+            if image is None:
+                continue
+            if image.ndim == 2 and channel not in (None, "mean"):
+                problems.append(f"{label}: field 'channel' is {channel!r} but the image has a single channel")
+                continue
+            values = linear(image, channel, band)
+            if flat_file is not None:
+                flat = cache.get(flat_file)
+                if flat is None:
+                    continue
+                # A flat diffuse target facing the camera gives rho_ref e_i(x) l_z: dividing by it
+                # and multiplying by l_z removes the light's intensity and its spatial fall-off.
+                flat_values = linear(flat, channel, band)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    values = np.where(flat_values > 0, values / flat_values, np.nan) * np.float32(light[2] / np.linalg.norm(light))
+                images.append(values.astype(np.float32))
+            else:
+                images.append(values / np.float32(intensity))
+        if len(images) == len(members):
+            lights = np.array([p[2] for p in members], dtype=np.float64)
+            with np.errstate(invalid="ignore", divide="ignore"):  # bad lights are already reported
+                lights /= np.linalg.norm(lights, axis=1, keepdims=True)
+            by_band[band] = BandImages(band, np.stack(images), lights, tuple(str(p[1]) for p in members), members[0][4])
+
+    shape = cache.reference[1] if cache.reference else None
+    mask = None
+    if manifest.get("mask") is not None:
+        if not isinstance(manifest["mask"], str):
+            problems.append(f"{name}: field 'mask' must name an image file")
+        else:
+            mask = read_mask(folder / manifest["mask"], shape, problems)
+    if problems:
+        raise AcquisitionError(manifest_path, problems)
+    if mask is None:
+        mask = np.ones(shape, dtype=bool)
+    return Acquisition(folder, "manifest", by_band, float(declared_pixel), False, mask)
+
+
+def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None):
+    """Write images to an acquisition folder in the manifest format (16-bit PNG, linear).
+
+    Parameters
+    ----------
+    folder : str or Path
+        Created; must not exist or be empty.
+    bands : dict of str to (images, lights)
+        For each band, linear intensities ``(m, rows, columns)`` as fractions of full scale
+        (values are clipped to [0, 1] and quantised to 16 bits) and unit light directions
+        ``(m, 3)``.
+    pixel_um : float
+        Pixel size in micrometres.
+    mask : array_like of bool, optional
+        Written as ``mask.png`` (255 inside).
+    description : str, optional
+        Free text stored in the manifest.
+    intensities : dict of str to float, optional
+        Relative light intensity per band (the gain between radiance and recorded values),
+        written to every image entry of the band.
+
+    Returns
+    -------
+    Path
+        The manifest path.
+    """
+    folder = Path(folder)
+    if folder.exists() and any(folder.iterdir()):
+        raise SkinTopoError(f"{folder}: folder is not empty; will not write an acquisition into it")
+    folder.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for band, (images, lights) in bands.items():
+        if band not in BANDS:
+            raise SkinTopoError(f"unknown band {band!r}; choose from {list(BANDS)}")
+        for index, (image, light) in enumerate(zip(np.asarray(images), np.asarray(lights, dtype=float))):
+            name = f"{band}_{index:02d}.png"
+            counts = np.round(np.clip(np.nan_to_num(image), 0.0, 1.0) * 65535).astype(np.uint16)
+            write_png(folder / name, counts)
+            entry = {"file": name, "band": band, "light": [round(float(v), 9) for v in light]}
+            if intensities and band in intensities:
+                entry["intensity"] = float(intensities[band])
+            if DEFAULT_WAVELENGTH_NM[band] is not None:
+                entry["wavelength_nm"] = DEFAULT_WAVELENGTH_NM[band]
+            entries.append(entry)
+    manifest = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "pixel_size_um": float(pixel_um)}
+    if description:
+        manifest["description"] = description
+    if mask is not None:
+        write_png(folder / "mask.png", np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
+        manifest["mask"] = "mask.png"
+    manifest["images"] = entries
+    path = folder / MANIFEST_NAME
+    path.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    return path
