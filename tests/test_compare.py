@@ -126,3 +126,27 @@ def test_albedo_is_carried_by_the_height_registration(tmp_path, capsys):
     assert np.load(tmp_path / "c" / "follow_up_albedo_registered.npy").shape == (256, 256)
     with pytest.raises(SkinTopoError, match="albedo image is"):
         compare_visits(*heights, baseline_albedo=albedos[0][:100], follow_up_albedo=albedos[1])
+
+
+@pytest.mark.slow
+def test_a_visit_pair_rehearsed_from_the_command_line(tmp_path, capsys):
+    """synth makes the same skin displaced and with one wrinkle treated (no Python needed);
+    measure and compare find the treatment where it was made."""
+    common = ["--preset", "forehead-moderate", "--size", "192", "--seed", "5", "-q"]
+    assert main(["synth", "-o", str(tmp_path / "v1"), *common]) == 0
+    assert main(["synth", "-o", str(tmp_path / "v2"), *common, "--capture-seed", "6", "--shift-um", "60,-40", "--treat", "1=0.7"]) == 0
+    surface = json.loads((tmp_path / "v2" / "ground_truth" / "surface.json").read_text())
+    assert surface["surface"]["shift_um"] == [60.0, -40.0] and surface["surface"]["wrinkles"][0]["depth_um"] == pytest.approx(0.7 * 120.0)
+    assert surface["seed"] == 5 and surface["capture_seed"] == 6
+    for visit in ("v1", "v2"):
+        assert main(["measure", str(tmp_path / visit), "-o", str(tmp_path / f"m{visit}"), "-q"]) == 0
+    assert main(["compare", str(tmp_path / "mv1"), str(tmp_path / "mv2"), "-o", str(tmp_path / "change"), "-q"]) == 0
+    rows = {r["parameter"]: r for r in json.loads((tmp_path / "change" / "changes.json").read_text())["changes"]}
+    assert rows["wrinkle1.max_depth_um"]["change_percent"] == pytest.approx(-30, abs=6)
+    for other in ("wrinkle2.max_depth_um", "wrinkle3.max_depth_um"):
+        assert abs(rows[other]["change_percent"]) < 6
+    with pytest.raises(SystemExit):
+        main(["synth", "-o", str(tmp_path / "bad"), "--treat", "1=-2"])
+    assert "depth factor must be positive" in capsys.readouterr().err
+    assert main(["synth", "-o", str(tmp_path / "bad"), "--treat", "7=0.5", "-q"]) == 2
+    assert "has wrinkles 1..3, not [7]" in capsys.readouterr().err and not (tmp_path / "bad").exists()

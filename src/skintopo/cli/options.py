@@ -132,8 +132,8 @@ def parse_region(text):
 
 
 def add_output_switches(parser):
-    """--overwrite and -q/--quiet, which every command that writes an output folder takes."""
-    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty output folder")
+    """--overwrite and -q/--quiet, which every command that writes an output takes."""
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier output (never an input)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar, tables or messages (errors still go to stderr)")
 
 

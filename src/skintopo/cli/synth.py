@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
-
 
 from skintopo.cli import options as shared
 from skintopo.errors import SkinTopoError
@@ -18,6 +19,12 @@ def run(args):
         raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")
     check_output_folder(args.out, overwrite=args.overwrite)
     spec = preset_spec(args.preset, size_px=args.size, pixel_um=args.pixel_um)
+    factors = dict(args.treat)
+    unknown = sorted(i for i in factors if not 1 <= i <= len(spec.wrinkles))
+    if unknown:
+        raise SkinTopoError(f"--treat: the preset {args.preset} has wrinkles 1..{len(spec.wrinkles)}, not {unknown}")
+    wrinkles = tuple(replace(w, depth_um=w.depth_um * factors.get(i, 1.0)) for i, w in enumerate(spec.wrinkles, start=1))
+    spec = replace(spec, wrinkles=wrinkles, shift_um=args.shift_um)
     effects = Effects(
         shadows=not args.no_shadows,
         interreflection=not args.no_interreflection,
@@ -29,14 +36,35 @@ def run(args):
     settings = default_settings(skin=args.skin, effects=effects, noise=args.noise, saturate=args.saturate)
     started = time.perf_counter()
     surface = make_surface(spec, seed=args.seed)
-    bands, info = simulate_acquisition(surface, settings, seed=args.seed)
-    write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite)
+    capture_seed = args.seed if args.capture_seed is None else args.capture_seed
+    bands, info = simulate_acquisition(surface, settings, seed=capture_seed)
+    write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite,
+                                capture_seed=capture_seed)
     shared.say(
         args,
         f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin, {spec.size_px[1]}x{spec.size_px[0]} px "
         f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s",
     )
     return 0
+
+
+def _pair(text):
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like X,Y (micrometres)") from None
+    return x, y
+
+
+def _treatment(text):
+    try:
+        wrinkle, factor = text.split("=")
+        wrinkle, factor = int(wrinkle), float(factor)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like ID=FACTOR, e.g. 2=0.7") from None
+    if not factor > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the depth factor must be positive")
+    return wrinkle, factor
 
 
 def add_parser(commands):
@@ -46,7 +74,13 @@ def add_parser(commands):
     synth.add_argument("--skin", choices=["light", "dark"], default="light", help="albedo preset (default light)")
     synth.add_argument("--size", type=shared.size, default=256, help="field size in pixels (square, default 256)")
     synth.add_argument("--pixel-um", type=shared.positive_float, default=20.0, help="pixel size in micrometres (default 20)")
-    synth.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed of the skin (default 0): the same seed is the same skin")
+    synth.add_argument("--capture-seed", type=int, help="random seed of the sensor noise (default: --seed); another value is "
+                       "a repeat capture of the same skin")
+    synth.add_argument("--shift-um", type=_pair, default=(0.0, 0.0), metavar="X,Y",
+                       help="the field sees the same skin displaced by X, Y micrometres (x right, y up): a later visit")
+    synth.add_argument("--treat", type=_treatment, action="append", default=[], metavar="ID=FACTOR",
+                       help="multiply the depth of wrinkle ID (1 = the top one) by FACTOR, e.g. 2=0.7: a treated visit (repeatable)")
     synth.add_argument("--noise", type=shared.non_negative_float, default=1.0, help="sensor noise level, 0 = none, 1 = default camera")
     synth.add_argument("--saturate", action="store_true", help="expose so that specular highlights clip")
     synth.add_argument("--no-interreflection", action="store_true", help="no light bouncing between skin points (wrinkles)")

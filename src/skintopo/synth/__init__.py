@@ -122,9 +122,11 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
     return bands, info
 
 
-def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: RenderSettings, seed, info=None, overwrite=False):
+def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: RenderSettings, seed, info=None, overwrite=False,
+                                capture_seed=None):
     """Write an acquisition folder plus ``ground_truth/`` (height.x3p, normals.npy,
-    wrinkles.png with wrinkle ids, surface.json), all or nothing."""
+    wrinkles.png with wrinkle ids, surface.json), all or nothing. ``seed`` made the surface,
+    ``capture_seed`` (default: the same) the sensor noise."""
     with staged_output_folder(out, overwrite=overwrite) as staging:
         write_acquisition(
             staging, bands, surface.spec.pixel_um, mask=np.ones(surface.height.shape, bool),
@@ -138,6 +140,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
         description = {
             "units": {"lengths": "um", "curvature": "1/mm", "angles": "degrees"},
             "seed": seed,
+            "capture_seed": seed if capture_seed is None else capture_seed,
             "surface": surface.describe(),
             "render": {
                 "skin": settings.skin,
