@@ -97,6 +97,32 @@ def _fit(intensity, usable, lights):
     return g, count
 
 
+def _fit_without_brightest(intensity, usable, lights):
+    """g of each pixel fitted without its brightest observation. Pixels whose other
+    observations are all usable share one pseudo-inverse per left-out light (a loop over the
+    lights, not the pixels); the rest, and light sets that no longer span 3-D, go through
+    :func:`_fit`."""
+    m = lights.shape[0]
+    brightest = np.argmax(intensity, axis=0)
+    g = np.full((3, intensity.shape[1]), np.nan, dtype=np.float32)
+    general = ~usable.all(axis=0)
+    for j in range(m):
+        keep = np.arange(m) != j
+        chosen = ~general & (brightest == j)
+        if not chosen.any():
+            continue
+        singular = np.linalg.svd(lights[keep], compute_uv=False)
+        if m - 1 < 3 or singular[-1] < 1e-3 * singular[0]:
+            general |= chosen
+            continue
+        g[:, chosen] = np.linalg.pinv(lights[keep]).astype(np.float32) @ intensity[keep][:, chosen]
+    if general.any():
+        without = usable[:, general].copy()
+        without[brightest[general], np.arange(general.sum())] = False
+        g[:, general], _ = _fit(np.where(without, intensity[:, general], np.float32(0)), without, lights)
+    return g
+
+
 def _fit_residual(intensity, usable, lights):
     """Fit and the RMS residual of each pixel's usable observations."""
     g, count = _fit(intensity, usable, lights)
@@ -262,17 +288,20 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     intensity = np.where(usable, intensity, np.float32(0))
     g, count = _fit(intensity, usable, lights)
     if shadow_fraction > 0:  # the shadow rule (module notes): relative to a first fit's albedo
-        brightest = np.argmax(intensity, axis=0)
-        without = usable.copy()
-        without[brightest, np.arange(intensity.shape[1])] = False
-        g_without, _ = _fit(np.where(without, intensity, np.float32(0)), without, lights)
+        fraction = np.float32(shadow_fraction)
         with np.errstate(invalid="ignore"):
-            first_albedo = np.fmin(np.sqrt((g * g).sum(axis=0)), np.sqrt((g_without * g_without).sum(axis=0)))
-            shadowed = usable & ~(intensity > np.float32(shadow_fraction) * first_albedo)
-        if shadowed.any():
-            usable &= ~shadowed
-            intensity = np.where(usable, intensity, np.float32(0))
-            refit = np.flatnonzero(shadowed.any(axis=0))
+            shadowed = usable & ~(intensity > fraction * np.sqrt((g * g).sum(axis=0)))
+        # The fit without the brightest observation can only lower the threshold: it is needed
+        # only where some observation is under the threshold of the full fit.
+        candidates = np.flatnonzero(shadowed.any(axis=0))
+        if candidates.size:
+            g_without = _fit_without_brightest(intensity[:, candidates], usable[:, candidates], lights)
+            albedo = np.fmin(np.sqrt((g[:, candidates] ** 2).sum(axis=0)), np.sqrt((g_without * g_without).sum(axis=0)))
+            with np.errstate(invalid="ignore"):
+                dark = usable[:, candidates] & ~(intensity[:, candidates] > fraction * albedo)
+            refit = candidates[dark.any(axis=0)]  # the pixels with a shadowed observation
+            usable[:, candidates] &= ~dark
+            intensity[:, refit] = np.where(usable[:, refit], intensity[:, refit], np.float32(0))
             g[:, refit], count[refit] = _fit(intensity[:, refit], usable[:, refit], lights)
     if solver == "robust":
         g, count = _reject_outliers(intensity, usable, lights, g, count, threshold=robust_threshold, max_iterations=max_iterations,
