@@ -131,10 +131,9 @@ class MeasureOptions:
     @classmethod
     def from_dict(cls, data):
         """Inverse of :meth:`as_dict`."""
-        parts = {f.name: f.type for f in fields(cls)}
         kinds = {"reconstruction": ReconstructionOptions, "height": HeightOptions, "segmentation": SegmentationOptions,
                  "texture": TextureOptions}
-        unknown = set(data) - set(parts)
+        unknown = set(data) - {f.name for f in fields(cls)}
         if unknown:
             raise SkinTopoError(f"unknown measure options {sorted(unknown)}")
         values = {name: kinds[name](**data[name]) for name in kinds if name in data}
