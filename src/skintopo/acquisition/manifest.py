@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
 from skintopo.errors import AcquisitionError, SkinTopoError
-from skintopo.formats import write_png
+from skintopo.formats import fsync_path, write_png
 from skintopo.acquisition.capture import (
     BANDS,
     CHANNEL_INDEX,
     CHANNELS,
+    DEFAULT_SATURATION,
     DEFAULT_WAVELENGTH_NM,
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -242,3 +244,72 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     path = folder / MANIFEST_NAME
     path.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
     return path
+
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+
+
+def manifest_for_folder(folder, lights, pixel_um, *, pattern="{band}_{index}", mask=None):
+    """A manifest (dict) for a folder of images named after ``pattern`` and a list of lights.
+
+    ``pattern`` names the files without their suffix: ``{band}`` stands for red, green, blue
+    or white and ``{index}`` for the light's number (any integers: sorted, the k-th file of a
+    band is taken under the k-th light). ``lights`` is the ``lights`` list that ``skintopo
+    calibrate lights`` writes: ``{"light": [x, y, z], "intensity": ...}`` per light, in light
+    order (``intensity`` optional). Every problem is reported at once (AcquisitionError).
+    """
+    import re
+
+    folder = Path(folder)
+    problems = []
+    if "{band}" not in pattern or "{index}" not in pattern:
+        raise AcquisitionError(folder, [f"the file name pattern {pattern!r} must contain {{band}} and {{index}}"])
+    regex = re.compile("^" + re.escape(pattern).replace(r"\{band\}", "(?P<band>" + "|".join(BANDS) + ")")
+                       .replace(r"\{index\}", r"(?P<index>\d+)") + "$")
+    found = {}
+    for path in sorted(folder.iterdir()) if folder.is_dir() else []:
+        match = regex.match(path.stem) if path.suffix.lower() in IMAGE_SUFFIXES else None
+        if match:
+            found.setdefault(match["band"], []).append((int(match["index"]), path.name))
+    if not folder.is_dir():
+        raise AcquisitionError(folder, ["no such folder"])
+    if not found:
+        raise AcquisitionError(folder, [f"no image named like {pattern!r} (.png, .tif): e.g. red_1.png, for band red under light 1"])
+    entries = []
+    for band in (b for b in BANDS if b in found):
+        files = sorted(found[band])
+        if len(files) != len(lights):
+            problems.append(f"band {band}: {len(files)} image(s) ({', '.join(name for _, name in files)}) for {len(lights)} light(s)")
+            continue
+        for (_, name), light in zip(files, lights):
+            entry = {"file": name, "band": band, "light": [float(v) for v in light["light"]]}
+            if "intensity" in light:
+                entry["intensity"] = float(light["intensity"])
+            entries.append(entry)
+    if problems:
+        raise AcquisitionError(folder, problems)
+    manifest = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "pixel_size_um": float(pixel_um)}
+    if mask is not None:
+        manifest["mask"] = Path(mask).name
+    manifest["images"] = entries
+    return manifest
+
+
+def write_manifest(folder, manifest, *, overwrite=False):
+    """Write ``folder/acquisition.json`` after checking it loads as :func:`load_acquisition`
+    would load it (every problem reported, nothing written when one is found). An existing
+    manifest is replaced only with ``overwrite``; the images are never touched."""
+    folder = Path(folder)
+    target = folder / MANIFEST_NAME
+    if target.exists() and not overwrite:
+        raise SkinTopoError(f"{target}: exists; use --overwrite to replace it")
+    trial = folder / f".{MANIFEST_NAME}.checking.json"
+    trial.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    try:
+        acquisition = load_manifest(trial, None, None, DEFAULT_SATURATION)
+        fsync_path(trial)
+        os.replace(trial, target)
+        fsync_path(folder)
+    finally:
+        trial.unlink(missing_ok=True)
+    return acquisition

@@ -14,7 +14,7 @@ import sys
 from skintopo import __version__
 from skintopo.errors import SkinTopoError
 
-COMMANDS = ("reconstruct", "correct", "evaluate", "demo", "measure", "wrinkles", "compare", "batch", "calibrate", "paper_tables", "synth")
+COMMANDS = ("init", "reconstruct", "correct", "evaluate", "demo", "measure", "wrinkles", "compare", "batch", "calibrate", "paper_tables", "synth")
 
 
 def build_parser():
