@@ -28,8 +28,8 @@ def errors(images, separation, band, lights, truth, mask):
         "plain": photometric_stereo(images[band], lights, shadow_fraction=0.0),
         "default": photometric_stereo(images[band], lights),
         "robust": photometric_stereo(images[band], lights, solver="robust"),
-        "cross-band default": photometric_stereo(images[band], lights, highlights=separation.highlights(band)),
-        "cross-band robust": photometric_stereo(images[band], lights, solver="robust", highlights=separation.highlights(band)),
+        "cross-band default": photometric_stereo(images[band], lights, highlights=separation.highlights(images[band])),
+        "cross-band robust": photometric_stereo(images[band], lights, solver="robust", highlights=separation.highlights(images[band])),
     }
     return {name: round(float(np.nanmean(angular_error_degrees(r.normals, truth)[mask])), 3) for name, r in runs.items()}
 
@@ -43,7 +43,6 @@ def main():
                 images = render(height, normals, lights, specular_strength=strength, roughness=roughness)
                 images["white"] = (images["red"] + images["green"] + images["blue"]) / 3
                 separation = separate_specular(images["red"], images["green"], images["blue"])
-                separation.diffuse["white"] = images["white"] - separation.specular
                 for band in ("green", "white"):
                     row = {"object": name, "lights": count, "specular_scale": strength, "roughness": roughness, "band": band}
                     row.update(errors(images, separation, band, lights, normals, mask))

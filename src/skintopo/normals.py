@@ -408,11 +408,12 @@ class SpecularSeparation:
     diffuse: dict
     specular: np.ndarray
 
-    def highlights(self, band, ratio=HIGHLIGHT_RATIO):
-        """Observations whose specular part exceeds ``ratio`` times the band's diffuse part."""
-        diffuse = self.diffuse[band]
+    def highlights(self, images, ratio=HIGHLIGHT_RATIO):
+        """Observations of ``images`` (any band taken under the same lights, intensity-
+        corrected: red, green, blue or white) whose specular part exceeds ``ratio`` times
+        their diffuse part, images - specular."""
         with np.errstate(invalid="ignore"):
-            return self.specular > ratio * np.maximum(diffuse, 0)
+            return self.specular > ratio * np.maximum(np.asarray(images, dtype=np.float32) - self.specular, 0)
 
 
 def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):

@@ -18,7 +18,6 @@ from skintopo.errors import SkinTopoError
 from skintopo.normals import (
     DEFAULT_SHADOW_FRACTION,
     DEFAULT_SOLVER,
-    HIGHLIGHT_RATIO,
     PhotometricStereoResult,
     photometric_stereo,
     separate_specular,
@@ -61,26 +60,21 @@ def specular_separation(acquisition: Acquisition):
 
 def band_images(acquisition: Acquisition, band, separation=None):
     """(images, lights, highlights) of a band: the images as captured and, with a
-    :class:`~skintopo.normals.SpecularSeparation`, the observations it flags as highlights
-    (white: where the common specular part exceeds the ratio of the white images' diffuse
-    part, when taken under the same lights), else None. ``specular-free`` is the SUV
+    :class:`~skintopo.normals.SpecularSeparation` and the band taken under the red band's
+    lights, the observations it flags as highlights, else None. ``specular-free`` is the SUV
     projection of red, green and blue (:func:`skintopo.normals.specular_free_images`)."""
     if band == SPECULAR_FREE:
-        if any(b not in acquisition.bands for b in ("red", "green", "blue")):
-            missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
+        missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
+        if missing:
             raise SkinTopoError(f"the specular-free band needs red, green and blue; missing {missing}")
         if not _rgb_share_lights(acquisition):
             raise SkinTopoError("the specular-free band needs red, green and blue images taken under the same lights, in the same order")
         return specular_free_images(*(acquisition.bands[b].images for b in ("red", "green", "blue"))), acquisition.bands["red"].lights, None
     images, lights = acquisition.bands[band].images, acquisition.bands[band].lights
-    if separation is None:
+    red_lights = acquisition.bands["red"].lights if "red" in acquisition.bands else None
+    if separation is None or lights.shape != red_lights.shape or not np.allclose(lights, red_lights, atol=1e-6):
         return images, lights, None
-    if band in separation.diffuse:
-        return images, lights, separation.highlights(band)
-    if lights.shape == acquisition.bands["red"].lights.shape and np.allclose(lights, acquisition.bands["red"].lights, atol=1e-6):
-        with np.errstate(invalid="ignore"):
-            return images, lights, separation.specular > HIGHLIGHT_RATIO * np.maximum(images - separation.specular, 0)
-    return images, lights, None
+    return images, lights, separation.highlights(images)
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,

@@ -35,12 +35,11 @@ def pyplot():
     return matplotlib.pyplot
 
 
-def _png(figure):
-    import matplotlib.pyplot as plt
-
+def figure_png(figure, dpi=100):
+    """A matplotlib figure as base64 PNG (for a data: URI); the figure is closed."""
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
-    plt.close(figure)
+    figure.savefig(buffer, format="png", dpi=dpi)
+    pyplot().close(figure)
     return base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
@@ -64,7 +63,7 @@ def shaded_height_png(height, title="height"):
     axes.imshow(shade, extent=(0, columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000, 0))
     axes.set(xlabel="x (mm)", ylabel="y (mm)", title=title)
     figure.tight_layout()
-    return _png(figure)
+    return figure_png(figure)
 
 
 def image_png(values, title, spacing, cmap="gray"):
@@ -77,7 +76,7 @@ def image_png(values, title, spacing, cmap="gray"):
     figure.colorbar(shown, ax=axes, shrink=0.8)
     axes.set(xlabel="x (mm)", ylabel="y (mm)", title=title)
     figure.tight_layout()
-    return _png(figure)
+    return figure_png(figure)
 
 
 def wrinkle_overlay_png(height, measures):
@@ -98,7 +97,7 @@ def wrinkle_overlay_png(height, measures):
         axes.text(wrinkle.centroid_x_mm, wrinkle.centroid_y_mm, str(wrinkle.id), color="yellow", fontsize=14, weight="bold", ha="center", va="center")
     axes.set(xlabel="x (mm)", ylabel="y (mm, image rows)", title=f"{len(measures.wrinkles)} wrinkle(s)")
     figure.tight_layout()
-    return _png(figure)
+    return figure_png(figure)
 
 
 def _thicken(mask):
@@ -137,7 +136,7 @@ def cross_section_pngs(heights, truth, wrinkle_labels, *, title=""):
         axes.set(xlabel="distance across the wrinkle (mm)", ylabel="height (um)", title=f"{title}{caption}")
         axes.legend()
         figure.tight_layout()
-        pictures.append(_png(figure))
+        pictures.append(figure_png(figure))
     return pictures
 
 
@@ -151,7 +150,7 @@ def fractal_png(results):
     axes.set(xlabel="ln(scale) (method's own axis)", ylabel="ln(measure)", title="fractal dimension: log-log fits")
     axes.legend(fontsize=8)
     figure.tight_layout()
-    return _png(figure)
+    return figure_png(figure)
 
 
 

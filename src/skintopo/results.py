@@ -29,7 +29,6 @@ from skintopo.texture import finite_or_none
 PARAMETER_COLUMNS = ("region", "name", "value", "unit", "reference")
 CHANGE_COLUMNS = ("parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable")
 WRINKLE_TOTAL_UNITS = {"count": "", "total_length_mm": "mm", "mean_depth_um": "um", "area_fraction": ""}
-CHANGED_WRINKLE_MEASURES = ("length_mm", "mean_depth_um", "max_depth_um", "mean_width_mm", "volume_mm3", "severity")
 
 
 def run_header(command, **extra):

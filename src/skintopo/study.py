@@ -21,8 +21,6 @@ of the pair only is counted in ``unpaired_subjects`` and named on the page.
 
 from __future__ import annotations
 
-import base64
-import io
 import re
 
 import numpy as np
@@ -103,15 +101,9 @@ def study_statistics(changes, repeats, units, visits=None):
     return pd.DataFrame(rows, columns=STATISTICS_COLUMNS)
 
 
-def _png(figure):
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=90)
-    return base64.b64encode(buffer.getvalue()).decode("ascii")
-
-
 def _paired_plots(long):
     """One small figure per plotted parameter: visits on x, one line per subject."""
-    from skintopo.report import pyplot
+    from skintopo.report import figure_png, pyplot
 
     plt = pyplot()
 
@@ -130,8 +122,7 @@ def _paired_plots(long):
         axis.title.set_fontsize(10)
         if subset.subject.nunique() <= 8:
             axis.legend(fontsize=7)
-        pictures.append((name, _png(figure)))
-        plt.close(figure)
+        pictures.append((name, figure_png(figure, dpi=90)))
     return pictures
 
 
