@@ -1,6 +1,7 @@
 """The measurement as one pipeline, with its options kept beside its result.
 
-acquisition -> normals per band -> height (a band, or the spectral correction) -> texture,
+acquisition -> normals per band -> height (a band, the spectral correction or the physically
+based height) -> texture,
 fractal and wrinkle measures. The command line, the batch, the demo and a notebook all call
 these functions; each stage also stays usable alone.
 
@@ -27,7 +28,8 @@ from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
 from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
-from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, specular_separation
+from skintopo.physics import PhysicsResult, physics_height
+from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, rgb_share_lights, specular_separation
 from skintopo.segmentation import (
     DEFAULT_CUTOFF_UM,
     DEFAULT_MIN_DEPTH_UM,
@@ -40,7 +42,8 @@ from skintopo.texture import DEFAULT_P, DEFAULT_Q, finite_or_none, measure_textu
 from skintopo.wrinkles import WrinkleMeasures, measure_wrinkles
 
 AUTO_HEIGHT = "auto"
-HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, *BANDS, SPECULAR_FREE)
+PHYSICS = "physics"
+HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, PHYSICS, *BANDS, SPECULAR_FREE)
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,8 @@ class HeightOptions:
 
     ``method``: ``"auto"`` (the paper's spectral correction when red, green and blue are
     present, else the white band, else the only band), ``"paper"`` or ``"feathered"`` (the
-    spectral correction, :mod:`skintopo.correction`), or one band: ``red``, ``green``,
+    spectral correction, :mod:`skintopo.correction`), ``"physics"`` (the physically based
+    height, :mod:`skintopo.physics`), or one band: ``red``, ``green``,
     ``blue``, ``white``, ``specular-free``.
     """
 
@@ -181,6 +185,7 @@ class AcquisitionHeight:
     description: str
     bands: dict  # band -> BandReconstruction
     correction: CorrectionResult | None
+    physics: PhysicsResult | None = None
 
 
 def _resolved_method(method, present):
@@ -195,14 +200,17 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
     """Reconstruct the bands ``options.height`` needs and return the height to measure."""
     method = _resolved_method(options.height.method, acquisition.bands)
     spectral = method in CORRECTION_METHODS
-    needed = REQUIRED_BANDS if spectral or method == SPECULAR_FREE else (method,)
+    needed = REQUIRED_BANDS if spectral or method in (SPECULAR_FREE, PHYSICS) else (method,)
     missing = [b for b in needed if b not in acquisition.bands]
     if missing:
         what = f"the spectral correction ({method})" if spectral else f"the height method {method!r}"
         raise SkinTopoError(f"{acquisition.source}: {what} needs {', '.join(needed[:-1]) + ' and ' + needed[-1] if len(needed) > 1 else needed[0]} "
                             f"images; missing {missing} (the acquisition has {sorted(acquisition.bands)})")
+    if method == PHYSICS and not rgb_share_lights(acquisition):
+        raise SkinTopoError(f"{acquisition.source}: the physics height needs red, green and blue images taken under the same lights, "
+                            "in the same order")
     # the spectral correction reports every band beside its own height (``skintopo correct``)
-    wanted = list(acquisition.bands) if spectral or options.height.method == AUTO_HEIGHT else [method]
+    wanted = list(acquisition.bands) if spectral or method == PHYSICS or options.height.method == AUTO_HEIGHT else [method]
     results = reconstruct_bands(acquisition, options.reconstruction, wanted, progress)
     albedo_band = "red" if "red" in results else next(iter(results))
     albedo = results[albedo_band].stereo.albedo
@@ -211,6 +219,11 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          mask=acquisition.mask, integrator=options.reconstruction.integrator,
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
+    if method == PHYSICS:
+        physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
+                                 acquisition.pixel_um, mask=acquisition.mask, integrator=options.reconstruction.integrator)
+        return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
+                                 None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
 
 

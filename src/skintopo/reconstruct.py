@@ -41,7 +41,7 @@ HIGHLIGHT_MODES = ("cross-band", "none")
 DEFAULT_HIGHLIGHTS = "none"  # cross-band helps opaque shiny surfaces and blue, hurts dark skin green (docs/method.md)
 
 
-def _rgb_share_lights(acquisition: Acquisition):
+def rgb_share_lights(acquisition: Acquisition):
     """True when red, green and blue are all present and taken under the same lights, in order."""
     if any(b not in acquisition.bands for b in ("red", "green", "blue")):
         return False
@@ -53,7 +53,7 @@ def _rgb_share_lights(acquisition: Acquisition):
 def specular_separation(acquisition: Acquisition):
     """:func:`skintopo.normals.separate_specular` of the acquisition's red, green and blue
     images, or None when the three bands are not all there under the same lights."""
-    if not _rgb_share_lights(acquisition):
+    if not rgb_share_lights(acquisition):
         return None
     return separate_specular(*(acquisition.bands[b].images for b in ("red", "green", "blue")))
 
@@ -67,7 +67,7 @@ def band_images(acquisition: Acquisition, band, separation=None):
         missing = [b for b in ("red", "green", "blue") if b not in acquisition.bands]
         if missing:
             raise SkinTopoError(f"the specular-free band needs red, green and blue; missing {missing}")
-        if not _rgb_share_lights(acquisition):
+        if not rgb_share_lights(acquisition):
             raise SkinTopoError("the specular-free band needs red, green and blue images taken under the same lights, in the same order")
         return specular_free_images(*(acquisition.bands[b].images for b in ("red", "green", "blue"))), acquisition.bands["red"].lights, None
     images, lights = acquisition.bands[band].images, acquisition.bands[band].lights

@@ -1,4 +1,4 @@
-"""``skintopo correct``: the paper's spectral correction."""
+"""``skintopo correct``: the paper's spectral correction, or the physically based height."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from skintopo.cli import options as shared
 from skintopo.correction import DEFAULT_METHOD as DEFAULT_CORRECTION_METHOD
 from skintopo.correction import METHODS as CORRECTION_METHODS
 from skintopo.outputs import check_output_folder, staged_output_folder, write_json
-from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_summary
+from skintopo.pipeline import PHYSICS, HeightOptions, MeasureOptions, acquisition_summary
 from skintopo.reconstruct import band_statistics
 from skintopo.results import run_header
 
@@ -18,6 +18,7 @@ from skintopo.results import run_header
 def run(args):
     from skintopo.outputs import write_label_image
     from skintopo.pipeline import acquisition_height
+    from skintopo.segmentation import segment_wrinkles
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
@@ -25,7 +26,7 @@ def run(args):
     options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method),
                              segmentation=shared.segmentation_options(args))
     made = acquisition_height(acquisition, options, shared.band_progress(args))
-    segmentation = made.correction.segmentation
+    segmentation = made.correction.segmentation if made.correction else segment_wrinkles(made.height, **options.segmentation.as_kwargs())
     summary = run_header(
         "correct", acquisition=acquisition_summary(acquisition),
         options=options.as_dict() | {"segmentation_parameters": segmentation.parameters},
@@ -39,18 +40,26 @@ def run(args):
         write_label_image(staging / "wrinkles.png", segmentation.labels)
         for band, result in made.bands.items():
             shared.write_band_outputs(staging / band, result)
+        if made.physics is not None:
+            write_json(staging / "physics.json", made.physics.as_dict())
         summary["seconds_total"] = time.perf_counter() - started
         write_json(staging / "summary.json", summary)
+    if made.physics is not None and not made.physics.converged:
+        state = "diverged (the lowest-residual iteration before it is kept)" if made.physics.diverged else "did not converge"
+        shared.say(args, f"warning: the physics height {state} in {made.physics.iterations} iterations "
+                         f"(relative height changes {[round(c, 3) for c in made.physics.changes]}); see physics.json")
     shared.say(args, f"{segmentation.count} wrinkle(s) segmented; height: {made.description}, in {Path(args.out).resolve() / 'height.x3p'}")
     return 0
 
 
 def add_parser(commands):
-    correct = commands.add_parser("correct", help="the paper's method: per-band reconstruction, wrinkle segmentation, spectral correction")
+    correct = commands.add_parser("correct", help="per-band reconstruction and the corrected height: the paper's spectral correction "
+                                                  "(paper, feathered) or the physically based height (physics)")
     shared.add_acquisition_options(correct)
     correct.add_argument("-o", "--out", type=Path, required=True, help="output folder")
-    correct.add_argument("--method", choices=CORRECTION_METHODS, default=DEFAULT_CORRECTION_METHOD,
-                         help=f"correction variant (default {DEFAULT_CORRECTION_METHOD})")
+    correct.add_argument("--method", choices=(*CORRECTION_METHODS, PHYSICS), default=DEFAULT_CORRECTION_METHOD,
+                         help=f"paper or feathered (the paper's spectral correction), or physics (inverts scattering, "
+                              f"interreflection and highlights; writes physics.json); default {DEFAULT_CORRECTION_METHOD}")
     shared.add_segmentation_options(correct)
     shared.add_output_switches(correct)
     correct.set_defaults(handler=run)

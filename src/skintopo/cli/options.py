@@ -153,7 +153,8 @@ def add_measure_options(parser):
     add_reconstruction_options(parser)
     parser.add_argument("--method", choices=HEIGHT_METHODS, default=HeightOptions().method,
                         help="height measured from an acquisition: auto (default: the paper's correction when red, green and blue "
-                        "are present, else white, else the only band), paper, feathered, or one band")
+                        "are present, else white, else the only band), paper, feathered, physics (inverts scattering, interreflection "
+                        "and highlights; at least 5 mm of field recommended), or one band")
     parser.add_argument("--level", type=non_negative_int, default=TextureOptions().level_order,
                         help="order of the least-squares form removed first (default 1: plane)")
     parser.add_argument("--p", type=float, default=DEFAULT_P, help=f"material ratio p of Vmp/Vmc/Vvc (default {DEFAULT_P:g} %%)")

@@ -7,20 +7,9 @@ intensity. Intensities are normalised so that a Lambertian surface gives I = rho
 Diffuse, with cast shadows and interreflection (radiosity)
     B = T[ rho (E + K B) ],   E(x) = max(0, n . s) V_s(x)
 
-    E is the direct irradiance, V_s the cast-shadow visibility (horizon test: x is shadowed
-    when the terrain along the light's azimuth rises above the light's elevation). K is the
-    interreflection operator: (K B)(x) = (1/pi) integral of B(y(omega)) (n_x . omega) d omega
-    over the directions in which x sees other skin, which is the radiosity kernel
-    V(x,y) (n_x.(y-x))+ (n_y.(x-y))+ / (pi |x-y|^4) dA_y rewritten over the hemisphere of x.
-    It is evaluated by horizon marching: along ``n_azimuth`` azimuths and radial steps up to
-    ``radius_um``, each sample that rises above the current horizon covers the band of
-    elevations between the old and the new horizon, whose projected solid angle is exact:
-
-        Omega = dphi [a (e/2 + sin 2e / 4) + n_z sin^2(e) / 2]  from e_old to e_new,
-        a = n_x cos(phi) + n_y sin(phi),
-
-    starting at the tangent-plane elevation atan(-a / n_z). The band takes the radiosity of
-    that sample. Rows of K sum to at most 1 (the hemisphere's projected solid angle is pi),
+    E is the direct irradiance, V_s the cast-shadow visibility and K the interreflection
+    operator, both from :mod:`skintopo.transport` (horizon marching over the height field).
+    Rows of K sum to at most 1 (the hemisphere's projected solid angle is pi),
     so for rho < 1 the iteration B_{k+1} = T[rho (E + K B_k)] converges (multi-bounce);
     ``bounces=1`` stops after one bounce. Higher albedo gives more interreflection, as
     B ~ rho E / (1 - rho F) in a groove of form factor F (field notes).
@@ -48,7 +37,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.ndimage
-import scipy.sparse
+
+from skintopo.transport import cast_shadow, interreflection_operator
 
 BAND_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0}
 SKIN_ALBEDO = {  # diffuse albedo red/green/blue (field notes: NCSU skin reflectance data)
@@ -89,88 +79,6 @@ def default_lights(slant_degrees=45.0, count=4):
     slant = np.radians(slant_degrees)
     tilt = 2 * np.pi * np.arange(count) / count
     return np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.full(count, np.cos(slant))], axis=1)
-
-
-def _radial_steps(radius_px):
-    """Radial distances in pixels: every pixel to 8, then growing by 15% per step."""
-    steps = [float(r) for r in range(1, min(8, int(radius_px)) + 1)]
-    while steps[-1] * 1.15 <= radius_px:
-        steps.append(steps[-1] * 1.15)
-    return steps
-
-
-def _march(z, pixel, azimuth, steps):
-    """For each radial step along ``azimuth``, yield the source and target slices of the
-    pixels whose sample stays in the field, the target offset and the elevation angle of the
-    target seen from the source. Offsets are rounded to whole pixels; repeats are skipped."""
-    rows, columns = z.shape
-    previous = None
-    for r in steps:
-        dc = int(round(r * np.cos(azimuth)))
-        dr = int(round(-r * np.sin(azimuth)))  # y up: rows go the other way
-        if (dr, dc) == previous or (dr, dc) == (0, 0) or abs(dr) >= rows or abs(dc) >= columns:
-            continue
-        previous = (dr, dc)
-        source = (slice(max(0, -dr), rows - max(0, dr)), slice(max(0, -dc), columns - max(0, dc)))
-        target = (slice(max(0, dr), rows - max(0, -dr)), slice(max(0, dc), columns - max(0, -dc)))
-        distance = pixel * np.hypot(dr, dc)
-        elevation = np.arctan((z[target] - z[source]) / distance)
-        yield source, target, (dr, dc), elevation
-
-
-def cast_shadow(z, pixel, light):
-    """True where ``light`` (unit vector) is hidden by the terrain along its azimuth."""
-    light = np.asarray(light, dtype=float)
-    horizontal = np.hypot(light[0], light[1])
-    shadow = np.zeros(z.shape, dtype=bool)
-    if horizontal < 1e-9:
-        return shadow
-    elevation = np.arctan2(light[2], horizontal)
-    reach = int(np.ceil(np.ptp(z) / (pixel * np.tan(elevation)))) + 1
-    azimuth = np.arctan2(light[1], light[0])
-    for source, _, _, rise in _march(z, pixel, azimuth, [float(r) for r in range(1, reach + 1)]):
-        shadow[source] |= rise > elevation
-    return shadow
-
-
-def interreflection_operator(z, normals, pixel, *, radius_um, n_azimuth=16, min_weight=1e-7):
-    """Sparse matrix K (P x P, P = rows * columns) of the interreflection gather.
-
-    (K B)[x] = sum over y of K[x, y] B[y] approximates (1/pi) times the integral of B over the
-    part of x's hemisphere covered by skin, weighted by n_x . omega (see the module notes).
-    Each row sums to at most 1.
-    """
-    rows, columns = z.shape
-    index = np.arange(rows * columns).reshape(rows, columns)
-    steps = _radial_steps(max(1.0, radius_um / pixel))
-    d_azimuth = 2 * np.pi / n_azimuth
-    nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
-    sources, targets, weights = [], [], []
-    for j in range(n_azimuth):
-        azimuth = (j + 0.5) * d_azimuth
-        a = nx * np.cos(azimuth) + ny * np.sin(azimuth)
-        horizon = np.arctan2(-a, nz)  # tangent-plane elevation: n . omega = 0
-
-        def primitive(e, region):
-            return a[region] * (e / 2 + np.sin(2 * e) / 4) + nz[region] * np.sin(e) ** 2 / 2
-
-        for source, target, _, elevation in _march(z, pixel, azimuth, steps):
-            old = horizon[source]
-            rises = elevation > old
-            if not rises.any():
-                continue
-            new = np.where(rises, elevation, old)
-            weight = (primitive(new, source) - primitive(old, source)) * (d_azimuth / np.pi)
-            horizon[source] = new
-            keep = rises & (weight > min_weight)
-            sources.append(index[source][keep])
-            targets.append(index[target][keep])
-            weights.append(weight[keep])
-    if not sources:
-        return scipy.sparse.csr_matrix((rows * columns, rows * columns))
-    return scipy.sparse.csr_matrix(
-        (np.concatenate(weights), (np.concatenate(sources), np.concatenate(targets))), shape=(rows * columns, rows * columns)
-    )
 
 
 def translucency_operator(weight, sigma_px):

@@ -1,0 +1,85 @@
+"""Benchmark: the physically based height (``--method physics``) against every band and the
+paper's correction, in the simulator: forehead-low / -moderate / -high x light / dark skin x
+seeds 1-6, 256 x 256 at 20 um, all effects on. RMS height error (um) and mean |relative
+error| of the wrinkles' max depth, per method; an ablation (each component off) on seed 1;
+and the time of physics on a 1000 x 1000 acquisition. Results: bench/results/physics.json.
+
+Run: ``python bench/bench_physics.py [SEEDS]`` from the repository (default 6 seeds).
+"""
+
+import sys
+import time
+
+import numpy as np
+from _results import write_result  # bench/_results.py (scripts run from bench/)
+
+from skintopo.correction import spectral_correction
+from skintopo.evaluation import evaluate_height
+from skintopo.height import integrate_normals
+from skintopo.normals import photometric_stereo
+from skintopo.physics import physics_height
+from skintopo.synth import make_surface, preset_spec, simulate_acquisition
+from skintopo.synth.render import RenderSettings, default_lights
+
+BANDS = ("red", "green", "blue", "white")
+ABLATIONS = {"physics": {}, "no-scattering": {"scattering": False}, "no-interreflection": {"interreflection": False},
+             "no-highlights": {"highlights": False}}
+
+
+def scores(height, surface):
+    try:
+        found = evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels)
+    except Exception as error:  # a failed reconstruction is a result too
+        return {"rms_um": float("inf"), "depth_error": float("inf"), "depth_bias": float("nan"), "failed": str(error)}
+    return {"rms_um": round(found["rms_height_error_um"], 3),
+            "depth_error": round(float(np.mean(found["wrinkle_depth_error_relative"])), 4),
+            "depth_bias": round(float(np.mean(np.array(found["wrinkle_max_depth_um"]) / found["wrinkle_max_depth_true_um"] - 1)), 4)}
+
+
+def case(preset, skin, seed, ablation):
+    surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
+    bands, info = simulate_acquisition(surface, RenderSettings(skin=skin, lights=default_lights()), seed=seed)
+    images = {band: bands[band][0] / info["exposure_gain"][band] for band in BANDS}
+    lights = bands["red"][1]
+    row, normals = {}, {}
+    for band in BANDS:
+        stereo = photometric_stereo(images[band], lights)
+        normals[band] = stereo.normals
+        row[band] = scores(integrate_normals(stereo.normals, 20.0, mask=stereo.valid), surface)
+    for method in ("paper", "feathered"):
+        row[method] = scores(spectral_correction(normals, 20.0, method=method).height, surface)
+    for name, switches in (ABLATIONS.items() if ablation else [("physics", {})]):
+        start = time.perf_counter()
+        result = physics_height(images, lights, 20.0, **switches)
+        row[name] = scores(result.height, surface) | {"seconds": round(time.perf_counter() - start, 2),
+                                                       "iterations": result.iterations, "converged": result.converged}
+    return row
+
+
+def main():
+    seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 6
+    cases = []
+    for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
+        for skin in ("light", "dark"):
+            for seed in range(1, seeds + 1):
+                row = case(preset, skin, seed, ablation=seed == 1)
+                cases.append({"preset": preset, "skin": skin, "seed": seed, "results": row})
+                best_other = min(v["rms_um"] for k, v in row.items() if k in (*BANDS, "paper", "feathered"))
+                print(preset, skin, seed, "physics", row["physics"]["rms_um"], "best other", best_other, flush=True, file=sys.stderr)
+    methods = [*BANDS, "paper", "feathered", "physics"]
+    summary = {m: {"mean_rms_um": round(float(np.mean([c["results"][m]["rms_um"] for c in cases])), 3),
+                   "mean_depth_error": round(float(np.mean([c["results"][m]["depth_error"] for c in cases])), 4)} for m in methods}
+    wins = sum(all(c["results"]["physics"]["rms_um"] < c["results"][m]["rms_um"] for m in methods[:-1]) for c in cases)
+    depth_wins = sum(all(c["results"]["physics"]["depth_error"] < c["results"][m]["depth_error"] for m in methods[:-1]) for c in cases)
+    surface = make_surface(preset_spec("forehead-moderate", size_px=1000), seed=1)
+    bands, info = simulate_acquisition(surface, RenderSettings(lights=default_lights()), seed=1)
+    start = time.perf_counter()
+    physics_height({b: bands[b][0] / info["exposure_gain"][b] for b in ("red", "green", "blue")}, bands["red"][1], 20.0)
+    seconds_1000 = time.perf_counter() - start
+    write_result("physics", {"summary": summary, "physics_best_rms_cases": f"{wins}/{len(cases)}",
+                             "physics_best_depth_cases": f"{depth_wins}/{len(cases)}",
+                             "seconds_physics_1000x1000": round(seconds_1000, 1), "target_seconds": 5.0, "cases": cases})
+
+
+if __name__ == "__main__":
+    main()

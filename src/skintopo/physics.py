@@ -1,0 +1,418 @@
+"""Physically based height: invert subsurface scattering, interreflection and highlights.
+
+Image formation of one band c under light i (linear images divided by the light's
+relative intensity, orthographic camera, directional lights):
+
+    I_ci = T_c[ rho_c (E_i + K B_ci) ] + s_i,     E_i = max(0, n . l_i) V_i,   B_ci = I_ci - s_i
+
+* T_c, subsurface scattering: light entering the skin re-emerges spread around the entry
+  point, a linear shift-invariant blur per band (widest in red). Its transfer function is
+  modelled as T(f) = (1 - w) + w (1 + (2 pi f l)^2 / (2 a))^(-a): a fraction w re-emerges
+  spread by a Matern-type profile of length l and shape a. a = 3/2 is the 2-D exponential
+  profile exp(-r sqrt(3) / l) (heavy-tailed, as measured diffusion profiles are); a -> infinity
+  is the Gaussian of standard deviation l. The family contains both, and the shape is fitted.
+* K, interreflection: the radiosity gather of :mod:`skintopo.transport` on the current
+  height (Nayar, Ikeuchi & Kanade 1991: for a Lambertian surface the observed radiance *is*
+  the radiosity, so the light arriving from the rest of the surface is K I, known once the
+  shape is).
+* s_i, surface (specular) reflection: the same in every band once images are divided by
+  each light's intensity (sebum reflects at the surface, before any absorption), modelled as
+  a microfacet lobe s_i = k D(n . h_i; m) / (n . v) with a Beckmann facet distribution D of
+  roughness m; k and m are fitted globally, not per pixel.
+
+Estimation, alternating until the height stops changing (``tolerance``):
+
+1. Kernels, from the capture itself: photometric stereo is linear, so each band's scaled
+   normal field g_c = rho_c n is the true one blurred by T_c. The cross-spectrum of the
+   bands' g_x, g_y against blue's, averaged over rings of spatial frequency, measures
+   T_red / T_blue and T_green / T_blue; the three kernels (w, l per band, a shared) are the
+   least-squares fit of these two ratio curves (each band's g normalised by its median
+   albedo, so the ratios tend to 1 at zero frequency). The ratio of two members of the
+   family is not itself a member, which is what makes the absolute kernels identifiable.
+2. Direct images: J_ci = I_ci - s_i - T_c[rho_c K (I_ci - s_i)], which is T_c[rho_c E_i].
+3. Fusion and deconvolution in one step: per spatial frequency f the bands give
+   J_ci(f) = rho_c T_c(f) S_i(f), and the least-squares S_i(f) = sum_c a_c J_ci / sum_c a_c^2,
+   a_c = rho_c T_c(f), weights each band by how much of the shading it kept at that
+   frequency (a band blurred to nothing there contributes nothing), instead of the paper's
+   fixed 1/2, 1/4, 1/4. S_i is the unblurred direct shading, E_i up to the albedo pattern.
+4. Photometric stereo of S (all bands at once), integration, and from the new height: K,
+   cast shadows and the specular lobe's k, m (fitted to the bands' disagreement, see
+   ``_fit_specular``). The model residual I_ci - s_i - T_c[rho_c (E_i + K B_ci)] is recorded
+   per iteration, and the height of the iteration with the lowest residual is returned.
+
+Known limits (numbers in docs/method.md): the specular fit relies on the lobe's shape and
+the current normals; on dark skin, where highlights are large against the diffuse part, it
+leaves wrinkles too deep. The kernel fit needs the field to span at least a few times the
+red diffusion length (a 5 mm field holds it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.fft
+import scipy.ndimage
+import scipy.optimize
+
+from skintopo.errors import SkinTopoError
+from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
+from skintopo.heightmap import HeightMap, pixel_spacing
+from skintopo.lights import check_light_directions
+from skintopo.normals import photometric_stereo
+from skintopo.transport import cast_shadow, interreflection_operator
+
+REQUIRED_BANDS = ("red", "green", "blue")
+DEFAULT_ITERATIONS = 4
+DEFAULT_TOLERANCE = 0.02  # stop when the RMS height change is below 2% of the height's RMS
+DIVERGENCE = 0.5  # a height that changes by more than half its RMS in one iteration is diverging
+DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
+MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
+ROUGHNESS_GRID = np.linspace(0.15, 0.7, 12)  # Beckmann m searched (skin 0.3-0.45, oily skin smoother: field notes)
+SHAPE_BOUNDS = (0.6, 50.0)  # Matern shape a: 3/2 = exponential profile, 50 ~ Gaussian
+
+
+@dataclass(frozen=True)
+class ScatteringKernel:
+    """Subsurface scattering of one band: T(f) = (1 - w) + w (1 + (2 pi f l)^2 / (2 a))^(-a).
+
+    ``weight`` w is the fraction of diffuse light that re-emerges spread, ``length_um`` l the
+    profile's length, ``shape`` a (3/2: exponential profile; large: Gaussian of sigma l).
+    """
+
+    weight: float
+    length_um: float
+    shape: float
+
+    def transfer(self, frequency):
+        """T(f) at spatial frequency ``frequency`` (cycles per micrometre)."""
+        f = np.asarray(frequency, dtype=float)
+        return (1 - self.weight) + self.weight * (1 + (2 * np.pi * f * self.length_um) ** 2 / (2 * self.shape)) ** (-self.shape)
+
+    def as_dict(self):
+        return {"weight": self.weight, "length_um": self.length_um, "shape": self.shape,
+                "transfer_at_cycles_per_mm": {str(f): float(self.transfer(f / 1000)) for f in (0.5, 1, 2, 4, 8)}}
+
+
+IDENTITY_KERNEL = ScatteringKernel(0.0, 1.0, 1.5)
+
+
+@dataclass(frozen=True, eq=False)
+class PhysicsResult:
+    """Output of :func:`physics_height`.
+
+    ``height`` is the iteration's whose model residual is lowest (an iteration that diverges
+    is not returned); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture);
+    ``specular``: fitted lobe (``roughness`` m, ``scale`` k); ``changes``: RMS height change
+    per iteration relative to the height's RMS; ``residuals``: RMS model residual per
+    iteration (fraction of full scale); ``converged``: the last change is below the tolerance;
+    ``diverged``: the last change exceeded DIVERGENCE and the iterations stopped there.
+    """
+
+    height: HeightMap
+    albedo: np.ndarray
+    kernels: dict
+    specular: dict
+    iterations: int
+    changes: list
+    residuals: list
+    converged: bool
+    diverged: bool
+    kernel_fit_rms: float
+    components: dict = field(default_factory=dict)
+
+    def as_dict(self):
+        return {
+            "method": "physics",
+            "components": self.components,
+            "kernels": {band: kernel.as_dict() for band, kernel in self.kernels.items()},
+            "kernel_fit_rms": self.kernel_fit_rms,
+            "specular": self.specular,
+            "iterations": self.iterations,
+            "relative_height_changes": self.changes,
+            "rms_residuals": self.residuals,
+            "converged": self.converged,
+            "diverged": self.diverged,
+        }
+
+
+def _frequencies(shape, spacing):
+    dy, dx = spacing
+    fy, fx = scipy.fft.fftfreq(shape[0], dy), scipy.fft.fftfreq(shape[1], dx)
+    return np.hypot(*np.meshgrid(fy, fx, indexing="ij"))
+
+
+def band_transfer_ratios(scaled_normals, spacing):
+    """Measured T_red / T_blue and T_green / T_blue per ring of spatial frequency.
+
+    Parameters
+    ----------
+    scaled_normals : dict band -> ndarray (rows, columns, 3)
+        g = albedo x normal of red, green and blue from plain photometric stereo.
+    spacing : (dy, dx) in micrometres
+
+    Returns
+    -------
+    frequency : ndarray
+        Ring centres, cycles per micrometre (ring width: one frequency step of the longer side).
+    ratios : dict ``"red"``/``"green"`` -> ndarray
+        Re(sum G_c conj G_blue) / sum |G_blue|^2 over the ring and the x, y components
+        (Hann-windowed fields, each divided by its median albedo).
+    power : ndarray
+        Blue's power per ring (a weight: rings without signal say nothing).
+    """
+    spectra = {}
+    for band, g in scaled_normals.items():
+        albedo = np.nanmedian(np.linalg.norm(g, axis=-1))
+        window = np.outer(np.hanning(g.shape[0]), np.hanning(g.shape[1]))
+        spectra[band] = [scipy.fft.fft2(np.nan_to_num((g[..., k] - np.nanmean(g[..., k])) / albedo) * window) for k in (0, 1)]
+    f = _frequencies(g.shape[:2], spacing)
+    step = 1 / (max(spacing[0] * g.shape[0], spacing[1] * g.shape[1]))
+    rings = int(0.5 / max(spacing) / step)
+    index = np.minimum(np.rint(f / step).astype(int), rings + 1).ravel()
+    power = np.bincount(index, sum(np.abs(s) ** 2 for s in spectra["blue"]).ravel(), rings + 2)[: rings + 1]
+    ratios = {}
+    for band in ("red", "green"):
+        cross = sum((a * np.conj(b)).real for a, b in zip(spectra[band], spectra["blue"]))
+        ratios[band] = np.bincount(index, cross.ravel(), rings + 2)[: rings + 1] / np.maximum(power, 1e-300)
+    return np.arange(rings + 1) * step, ratios, power
+
+
+def estimate_scattering_kernels(scaled_normals, spacing):
+    """Fit red, green and blue :class:`ScatteringKernel` to the measured band ratios.
+
+    Uses the rings from 3 frequency steps up (lower rings are dominated by the window and the
+    form) whose power is above 1e-3 of the strongest. Returns (kernels, RMS misfit).
+    """
+    frequency, ratios, power = band_transfer_ratios(scaled_normals, spacing)
+    low = frequency >= 3 * frequency[1]
+    use = low & (power > power[low].max() * 1e-3)
+    if use.sum() < 8:
+        raise SkinTopoError("the field is too small or too smooth to estimate the scattering kernels (fewer than 8 usable frequency rings)")
+    f = frequency[use]
+    weight = np.sqrt(np.log1p(power[use] / power[use].min()))
+
+    def kernels_of(x):
+        shape = np.exp(x[6])
+        return {band: ScatteringKernel(float(x[i]), float(x[3 + i]), float(shape)) for i, band in enumerate(REQUIRED_BANDS)}
+
+    def misfit(x):
+        kernels = kernels_of(x)
+        blue = kernels["blue"].transfer(f)
+        return np.concatenate([(kernels[band].transfer(f) / blue - ratios[band][use]) * weight for band in ("red", "green")])
+
+    lower = [0, 0, 0, 5, 5, 5, np.log(SHAPE_BOUNDS[0])]
+    upper = [0.95, 0.95, 0.95, 2000, 2000, 2000, np.log(SHAPE_BOUNDS[1])]
+    fits = [scipy.optimize.least_squares(misfit, [0.3, 0.3, 0.1, 200, 120, blue_length, np.log(shape)], bounds=(lower, upper))
+            for shape in (1.0, 2.0, 6.0) for blue_length in (20.0, 60.0)]
+    best = min(fits, key=lambda fit: fit.cost)
+    return kernels_of(best.x), float(np.sqrt(np.mean((best.fun / np.repeat(weight, 2)) ** 2)))
+
+
+class _Filter:
+    """Fourier filtering of image stacks with symmetric padding (no wrap-around at the edges)."""
+
+    def __init__(self, shape, spacing, pad):
+        self.pad = pad
+        self.frequency = _frequencies((shape[0] + 2 * pad, shape[1] + 2 * pad), spacing)
+
+    def forward(self, stack):
+        pad = self.pad
+        padded = np.pad(stack, [(0, 0)] * (stack.ndim - 2) + [(pad, pad), (pad, pad)], mode="symmetric")
+        return scipy.fft.fft2(padded, axes=(-2, -1), workers=-1)
+
+    def inverse(self, spectrum):
+        pad = self.pad
+        image = scipy.fft.ifft2(spectrum, axes=(-2, -1), workers=-1).real
+        return image[..., pad: image.shape[-2] - pad, pad: image.shape[-1] - pad]
+
+    def apply(self, stack, transfer):
+        return self.inverse(self.forward(stack) * transfer)
+
+
+def specular_lobe(normals, lights, roughness):
+    """Microfacet lobe D(n . h; m) / (n . v) per light, v = (0, 0, 1), zero where n . l <= 0.
+
+    D = exp(-tan^2 alpha / m^2) / (m^2 cos^4 alpha) (Beckmann, without its 1/pi, which the
+    fitted scale takes), alpha the angle between n and the half vector h of l and v.
+    """
+    view = np.array([0.0, 0.0, 1.0])
+    lobes = []
+    for light in lights:
+        half = (light + view) / np.linalg.norm(light + view)
+        cosine = np.clip(normals @ half, 1e-6, 1.0)
+        tan2 = (1 - cosine**2) / cosine**2
+        facets = np.exp(-tan2 / roughness**2) / (roughness**2 * cosine**4)
+        lobes.append(np.where(normals @ light > 0, facets / np.clip(normals[..., 2], 0.2, 1.0), 0.0))
+    return np.stack(lobes)
+
+
+class _Interreflection:
+    """K of the current height, on a grid of at most MAX_INTERREFLECTION_PIXELS (block means;
+    interreflection varies over the wrinkle's width, far more slowly than the microrelief)."""
+
+    def __init__(self, height: HeightMap, radius_um):
+        rows, columns = height.shape
+        self.factor = int(np.ceil(np.sqrt(rows * columns / MAX_INTERREFLECTION_PIXELS)))
+        self.shape = (rows, columns)
+        z = self.reduce(np.where(height.mask, height.z, np.nanmean(height.z[height.mask]))[None])[0]
+        spacing = tuple(s * self.factor for s in height.spacing)
+        self.operator = interreflection_operator(z, _height_normals(z, spacing), spacing[1], radius_um=radius_um)
+        self.coarse = z.shape
+
+    def reduce(self, stack):
+        k = self.factor
+        if k == 1:
+            return stack
+        rows, columns = (self.shape[0] // k) * k, (self.shape[1] // k) * k
+        trimmed = stack[:, :rows, :columns]
+        return trimmed.reshape(stack.shape[0], rows // k, k, columns // k, k).mean(axis=(2, 4))
+
+    def gather(self, stack):
+        """K B for each image of ``stack`` (m, rows, columns), at full resolution."""
+        coarse = self.reduce(stack)
+        gathered = (self.operator @ coarse.reshape(coarse.shape[0], -1).T).T.reshape(coarse.shape)
+        if self.factor == 1:
+            return gathered
+        zoom = (1, self.shape[0] / gathered.shape[1], self.shape[1] / gathered.shape[2])
+        return scipy.ndimage.zoom(gathered, zoom, order=1, mode="nearest", grid_mode=True)
+
+
+def _check_inputs(images, lights):
+    missing = [band for band in REQUIRED_BANDS if band not in images]
+    if missing:
+        raise SkinTopoError(f"the physics height needs red, green and blue images; missing {missing} (have {sorted(images)})")
+    lights = np.asarray(lights, dtype=float)
+    problems = check_light_directions(lights)
+    if problems:
+        raise SkinTopoError("the physics height cannot use these lights: " + "; ".join(problems))
+    shapes = {band: np.shape(images[band]) for band in REQUIRED_BANDS}
+    if len(set(shapes.values())) != 1 or len(shapes["red"]) != 3 or shapes["red"][0] != len(lights):
+        raise SkinTopoError(f"the physics height needs one image per light in every band, all of one size; got {shapes} for {len(lights)} lights")
+    return {band: np.asarray(images[band], dtype=float) for band in REQUIRED_BANDS}, lights
+
+
+def physics_height(images, lights, spacing, *, mask=None, scattering=True, interreflection=True, highlights=True,
+                   iterations=DEFAULT_ITERATIONS, tolerance=DEFAULT_TOLERANCE, radius_um=DEFAULT_RADIUS_UM,
+                   integrator=DEFAULT_INTEGRATOR) -> PhysicsResult:
+    """Height that inverts scattering, interreflection and highlights (module notes).
+
+    Parameters
+    ----------
+    images : dict band -> ndarray (m, rows, columns)
+        Red, green and blue linear images divided by each light's relative intensity, taken
+        under the same ``lights``. NaN (saturated) observations are filled from the band's
+        Lambertian fit.
+    lights : ndarray (m, 3)
+        Unit light directions, camera frame.
+    spacing : float or (dy, dx)
+        Pixel size in micrometres.
+    mask : ndarray of bool, optional
+        Pixels of skin; the others are filled for the Fourier steps and left out of the height.
+    scattering, interreflection, highlights : bool
+        Which effects to invert (all by default; switching one off is the ablation).
+    iterations : int
+        At most this many passes of steps 2-4; ``tolerance`` stops earlier.
+
+    Returns
+    -------
+    PhysicsResult
+    """
+    images, lights = _check_inputs(images, lights)
+    spacing = pixel_spacing(spacing)
+    shape = images["red"].shape[1:]
+    mask = np.ones(shape, bool) if mask is None else np.asarray(mask, dtype=bool)
+    scaled_normals, albedo_level = {}, {}
+    for band in REQUIRED_BANDS:
+        stereo = photometric_stereo(images[band], lights, mask=mask)
+        scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
+        albedo_level[band] = float(np.nanmedian(stereo.albedo))
+        fitted = np.einsum("rck,mk->mrc", np.nan_to_num(scaled_normals[band]), lights)
+        images[band] = np.where(np.isfinite(images[band]) & mask, images[band], fitted)
+    kernels, kernel_fit_rms = (estimate_scattering_kernels(scaled_normals, spacing) if scattering
+                               else ({band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0))
+    pad = int(min(max(shape) // 2, np.ceil(4 * max(k.length_um for k in kernels.values()) / min(spacing)) + 4))
+    fourier = _Filter(shape, spacing, pad)
+    transfer = {band: kernels[band].transfer(fourier.frequency) for band in REQUIRED_BANDS}
+    gain = np.stack([albedo_level[band] * transfer[band] for band in REQUIRED_BANDS])  # a_c(f)
+    specular_images = np.zeros_like(images["red"])
+    albedo_pattern = np.ones(shape)
+    direct = dict(images)  # I_c - T_c[rho_c v K B_c]: no interreflection known yet
+    gather = None
+    specular = {"roughness": None, "scale": 0.0}
+    changes, residuals = [], []
+    previous = best = None
+    for _ in range(iterations):
+        spectra = np.stack([fourier.forward(direct[band] - specular_images) for band in REQUIRED_BANDS])
+        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", gain, spectra) / (gain**2).sum(0))
+        stereo = photometric_stereo(shading, lights, mask=mask)
+        albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
+        height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
+                                   method=integrator)
+        z = np.where(height.mask, height.z, np.nanmean(height.z[height.mask]))
+        if previous is not None:
+            changes.append(float(np.sqrt(np.mean((z - previous) ** 2)) / max(np.std(z), 1e-12)))
+            if changes[-1] > DIVERGENCE:
+                break  # the model cannot explain these images (e.g. an effect left out): keep the best so far
+        previous = z
+        normals = _height_normals(z, spacing)
+        visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
+        if interreflection:
+            gather = _Interreflection(height, radius_um)
+            direct = {band: images[band] - fourier.apply(albedo_level[band] * albedo_pattern * gather.gather(images[band] - specular_images),
+                                                         transfer[band]) for band in REQUIRED_BANDS}
+        if highlights:
+            specular, specular_images = _fit_specular([fourier.forward(direct[band]) for band in REQUIRED_BANDS], gain, fourier,
+                                                      normals, lights, visible)
+        diffuse = np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern
+        residuals.append(float(np.sqrt(np.mean([(direct[band] - specular_images
+                                                 - fourier.apply(albedo_level[band] * diffuse, transfer[band])) ** 2
+                                                for band in REQUIRED_BANDS]))))
+        if best is None or residuals[-1] < best[0]:
+            best = (residuals[-1], height, albedo_pattern, specular)
+        if changes and changes[-1] < tolerance:
+            break
+    _, height, albedo_pattern, specular = best
+    converged = bool(changes) and changes[-1] < tolerance
+    diverged = bool(changes) and changes[-1] > DIVERGENCE
+    components = {"scattering": scattering, "interreflection": interreflection, "highlights": highlights,
+                  "interreflection_radius_um": radius_um if interreflection else None,
+                  "interreflection_grid_factor": gather.factor if gather is not None else None}
+    return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
+                         converged, diverged, kernel_fit_rms, components)
+
+
+def _height_normals(z, spacing):
+    """Unit normals of a height array from central differences (camera frame, y up)."""
+    dz_drow, dz_dcol = np.gradient(z, *spacing)
+    normals = np.stack([-dz_dcol, dz_drow, np.ones(z.shape)], axis=-1)
+    return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+
+
+def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible):
+    """Scale k and roughness m of the lobe, from the bands' disagreement alone.
+
+    With J_c = T_c[rho_c v E] + s (interreflection removed), the cross-blurred difference of
+    two bands, a_c' J_c - a_c J_c' with a_c = rho_c T_c, cancels the diffuse part exactly (the
+    blurs commute) and leaves (a_c' - a_c) s: it is free of the current shape's errors. k
+    (>= 0, least squares over the three band pairs, every pixel and light) and m (on
+    ROUGHNESS_GRID) fit the lobe of the current normals to it. Returns (parameters, s_i).
+    """
+    pairs = [(0, 1), (0, 2), (1, 2)]
+
+    def orthogonal(image, leak):  # the part of ``image`` that a multiple of ``leak`` cannot explain
+        return image - leak * float((image * leak).sum()) / float((leak * leak).sum())
+
+    leaks = [fourier.inverse(gain[i] * direct_spectra[j]) for i, j in pairs]
+    observed = [orthogonal(fourier.inverse(gain[j] * direct_spectra[i]) - leak, leak) for (i, j), leak in zip(pairs, leaks)]
+    best = None
+    for roughness in ROUGHNESS_GRID:
+        lobe = specular_lobe(normals, lights, roughness) * visible
+        spectrum = fourier.forward(lobe)
+        predicted = [orthogonal(fourier.inverse((gain[j] - gain[i]) * spectrum), leak) for (i, j), leak in zip(pairs, leaks)]
+        scale = max(0.0, sum(float((o * p).sum()) for o, p in zip(observed, predicted)) / sum(float((p * p).sum()) for p in predicted))
+        cost = sum(float(((o - scale * p) ** 2).sum()) for o, p in zip(observed, predicted))
+        if best is None or cost < best[0]:
+            best = (cost, float(roughness), scale, lobe)
+    _, roughness, scale, lobe = best
+    return {"roughness": roughness, "scale": scale}, scale * lobe
