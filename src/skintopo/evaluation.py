@@ -21,6 +21,7 @@ from skimage.registration import phase_cross_correlation
 
 from skintopo.errors import SkinTopoError
 from skintopo.filters import polynomial_form
+from skintopo.height import height_normals
 from skintopo.heightmap import HeightMap
 
 DEFAULT_RING_UM = 400.0
@@ -108,9 +109,7 @@ def height_difference(result: HeightMap, reference: HeightMap, mask=None):
 
 def slope_normals(height: HeightMap):
     """Unit normals from central differences of a height map (camera frame, y up)."""
-    dz_drow, dz_dcol = np.gradient(np.asarray(height.z, dtype=float), *height.spacing)
-    normals = np.stack([-dz_dcol, dz_drow, np.ones(height.shape)], axis=-1)  # p = dz/dcol, q = -dz/drow
-    return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+    return height_normals(height.z, height.spacing)
 
 
 def wrinkle_max_depths(height: HeightMap, labels, *, ring_um=DEFAULT_RING_UM):

@@ -38,6 +38,14 @@ MIN_NZ = 1e-3  # normals more grazing than ~89.9 degrees give no usable gradient
 _WORKERS = -1  # scipy.fft: use every core
 
 
+def height_normals(z, spacing):
+    """Unit normals of a height array from central differences (camera frame: x right, y up,
+    so rows run along -y): n = (-dz/dx, -dz/dy, 1) / |.|."""
+    dz_drow, dz_dcol = np.gradient(np.asarray(z, dtype=float), *pixel_spacing(spacing))
+    normals = np.stack([-dz_dcol, dz_drow, np.ones(np.shape(z))], axis=-1)
+    return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+
+
 def normals_to_gradients(normals):
     """Surface gradients p = dz/dx = -n_x/n_z and q = dz/dy = -n_y/n_z.
 

@@ -56,7 +56,7 @@ import scipy.ndimage
 import scipy.optimize
 
 from skintopo.errors import SkinTopoError
-from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
+from skintopo.height import DEFAULT_INTEGRATOR, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
 from skintopo.normals import photometric_stereo
@@ -257,7 +257,7 @@ class _Interreflection:
         self.shape = (rows, columns)
         z = self.reduce(np.where(height.mask, height.z, np.nanmean(height.z[height.mask]))[None])[0]
         spacing = tuple(s * self.factor for s in height.spacing)
-        self.operator = interreflection_operator(z, _height_normals(z, spacing), spacing[1], radius_um=radius_um)
+        self.operator = interreflection_operator(z, height_normals(z, spacing), spacing[1], radius_um=radius_um)
         self.coarse = z.shape
 
     def reduce(self, stack):
@@ -355,7 +355,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
             if changes[-1] > DIVERGENCE:
                 break  # the model cannot explain these images (e.g. an effect left out): keep the best so far
         previous = z
-        normals = _height_normals(z, spacing)
+        normals = height_normals(z, spacing)
         visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
         if interreflection:
             gather = _Interreflection(height, radius_um)
@@ -380,13 +380,6 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
                   "interreflection_grid_factor": gather.factor if gather is not None else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
                          converged, diverged, kernel_fit_rms, components)
-
-
-def _height_normals(z, spacing):
-    """Unit normals of a height array from central differences (camera frame, y up)."""
-    dz_drow, dz_dcol = np.gradient(z, *spacing)
-    normals = np.stack([-dz_dcol, dz_drow, np.ones(z.shape)], axis=-1)
-    return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
 
 
 def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible):
