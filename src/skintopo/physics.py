@@ -65,6 +65,7 @@ from skintopo.transport import cast_shadow, interreflection_operator
 REQUIRED_BANDS = ("red", "green", "blue")
 DEFAULT_ITERATIONS = 4
 DEFAULT_TOLERANCE = 0.02  # stop when the RMS height change is below 2% of the height's RMS
+FIT_ONCE = False
 DIVERGENCE = 0.5  # a height that changes by more than half its RMS in one iteration is diverging
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
@@ -361,15 +362,16 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
             gather = _Interreflection(height, radius_um)
             direct = {band: images[band] - fourier.apply(albedo_level[band] * albedo_pattern * gather.gather(images[band] - specular_images),
                                                          transfer[band]) for band in REQUIRED_BANDS}
-        if highlights:
+        if highlights and FIT_ONCE and specular["roughness"] is not None:
+            specular_images = specular["scale"] * specular_lobe(normals, lights, specular["roughness"]) * visible
+        elif highlights:
             specular, specular_images = _fit_specular([fourier.forward(direct[band]) for band in REQUIRED_BANDS], gain, fourier,
                                                       normals, lights, visible)
         diffuse = np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern
         residuals.append(float(np.sqrt(np.mean([(direct[band] - specular_images
                                                  - fourier.apply(albedo_level[band] * diffuse, transfer[band])) ** 2
                                                 for band in REQUIRED_BANDS]))))
-        if best is None or residuals[-1] < best[0]:
-            best = (residuals[-1], height, albedo_pattern, specular)
+        best = (residuals[-1], height, albedo_pattern, specular)
         if changes and changes[-1] < tolerance:
             break
     _, height, albedo_pattern, specular = best
