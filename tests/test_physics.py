@@ -77,8 +77,7 @@ def _band_and_paper_errors(images, lights, surface, pixel=20.0):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("skin", ["light", pytest.param("dark", marks=pytest.mark.xfail(
-    strict=True, reason="known limit: on dark skin the highlight fit leaves the wrinkles too deep on some seeds (docs/method.md)"))])
+@pytest.mark.parametrize("skin", ["light", "dark"])
 def test_physics_beats_every_band_and_the_paper_in_the_simulator(skin):
     surface, images, lights = _simulated("forehead-moderate", skin, seed=3)
     result = physics_height({b: images[b] for b in BANDS}, lights, 20.0)

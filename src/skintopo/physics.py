@@ -38,7 +38,8 @@ Estimation, alternating until the height stops changing (``tolerance``):
 4. Photometric stereo of S (all bands at once), integration, and from the new height: K,
    cast shadows and the specular lobe's k, m (fitted to the bands' disagreement, see
    ``_fit_specular``). The model residual I_ci - s_i - T_c[rho_c (E_i + K B_ci)] is recorded
-   per iteration, and the height of the iteration with the lowest residual is returned.
+   per iteration. The last iteration's height is returned, unless the height changed by more
+   than half its RMS in one pass (diverging): then the one before.
 
 Known limits (numbers in docs/method.md): the specular fit relies on the lobe's shape and
 the current normals; on dark skin, where highlights are large against the diffuse part, it
@@ -65,7 +66,6 @@ from skintopo.transport import cast_shadow, interreflection_operator
 REQUIRED_BANDS = ("red", "green", "blue")
 DEFAULT_ITERATIONS = 4
 DEFAULT_TOLERANCE = 0.02  # stop when the RMS height change is below 2% of the height's RMS
-FIT_ONCE = False
 DIVERGENCE = 0.5  # a height that changes by more than half its RMS in one iteration is diverging
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
@@ -102,8 +102,7 @@ IDENTITY_KERNEL = ScatteringKernel(0.0, 1.0, 1.5)
 class PhysicsResult:
     """Output of :func:`physics_height`.
 
-    ``height`` is the iteration's whose model residual is lowest (an iteration that diverges
-    is not returned); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture);
+    ``height`` is the last iteration's (or the one before, when the last one diverged); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture);
     ``specular``: fitted lobe (``roughness`` m, ``scale`` k); ``changes``: RMS height change
     per iteration relative to the height's RMS; ``residuals``: RMS model residual per
     iteration (fraction of full scale); ``converged``: the last change is below the tolerance;
@@ -354,27 +353,25 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
         if previous is not None:
             changes.append(float(np.sqrt(np.mean((z - previous) ** 2)) / max(np.std(z), 1e-12)))
             if changes[-1] > DIVERGENCE:
-                break  # the model cannot explain these images (e.g. an effect left out): keep the best so far
+                break  # the model cannot explain these images (e.g. an effect left out): keep the last good one
         previous = z
+        best = (height, albedo_pattern, specular)
         normals = height_normals(z, spacing)
         visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
         if interreflection:
             gather = _Interreflection(height, radius_um)
             direct = {band: images[band] - fourier.apply(albedo_level[band] * albedo_pattern * gather.gather(images[band] - specular_images),
                                                          transfer[band]) for band in REQUIRED_BANDS}
-        if highlights and FIT_ONCE and specular["roughness"] is not None:
-            specular_images = specular["scale"] * specular_lobe(normals, lights, specular["roughness"]) * visible
-        elif highlights:
+        if highlights:
             specular, specular_images = _fit_specular([fourier.forward(direct[band]) for band in REQUIRED_BANDS], gain, fourier,
                                                       normals, lights, visible)
         diffuse = np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern
         residuals.append(float(np.sqrt(np.mean([(direct[band] - specular_images
                                                  - fourier.apply(albedo_level[band] * diffuse, transfer[band])) ** 2
                                                 for band in REQUIRED_BANDS]))))
-        best = (residuals[-1], height, albedo_pattern, specular)
         if changes and changes[-1] < tolerance:
             break
-    _, height, albedo_pattern, specular = best
+    height, albedo_pattern, specular = best
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "interreflection": interreflection, "highlights": highlights,
