@@ -90,6 +90,23 @@ def test_physics_beats_every_band_and_the_paper_in_the_simulator(skin):
     assert 0.3 < red.weight < 0.7 and 150 < red.length_um < 400  # the simulator's red: 50% spread, Gaussian 250 um
 
 
+@pytest.mark.slow
+def test_physics_degrades_gracefully_with_a_wrong_light_intensity_and_8_bit_images():
+    """One light 5% brighter than recorded, every image quantised to 8 bits: still no worse
+    than the best band by more than 10% (issue 15's robustness bar)."""
+    surface, images, lights = _simulated("forehead-moderate", "light", seed=1)
+    damaged = {}
+    for band, stack in images.items():
+        scale = stack.max()
+        stack = np.round(stack / scale * 255) / 255 * scale
+        stack[0] *= 1.05
+        damaged[band] = stack
+    others = _band_and_paper_errors(damaged, lights, surface)
+    result = physics_height({b: damaged[b] for b in BANDS}, lights, 20.0)
+    error = evaluate_height(result.height, surface.height)["rms_height_error_um"]
+    assert error < 1.1 * min(others[b] for b in (*BANDS, "white")), (error, others)
+
+
 def test_physics_needs_red_green_and_blue_under_the_same_lights():
     images = {"red": np.ones((4, 32, 32)), "green": np.ones((4, 32, 32))}
     with pytest.raises(SkinTopoError, match=r"missing \['blue'\]"):
