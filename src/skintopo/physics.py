@@ -210,20 +210,23 @@ def estimate_scattering_kernels(scaled_normals, spacing):
 
 
 class _Filter:
-    """Fourier filtering of image stacks with symmetric padding (no wrap-around at the edges)."""
+    """Fourier filtering of real image stacks with symmetric padding (no wrap-around at the
+    edges); ``frequency`` is the half-plane grid of the real transform."""
 
     def __init__(self, shape, spacing, pad):
         self.pad = pad
-        self.frequency = _frequencies((shape[0] + 2 * pad, shape[1] + 2 * pad), spacing)
+        self.padded = (shape[0] + 2 * pad, shape[1] + 2 * pad)
+        fy, fx = scipy.fft.fftfreq(self.padded[0], spacing[0]), scipy.fft.rfftfreq(self.padded[1], spacing[1])
+        self.frequency = np.hypot(*np.meshgrid(fy, fx, indexing="ij"))
 
     def forward(self, stack):
         pad = self.pad
         padded = np.pad(stack, [(0, 0)] * (stack.ndim - 2) + [(pad, pad), (pad, pad)], mode="symmetric")
-        return scipy.fft.fft2(padded, axes=(-2, -1), workers=-1)
+        return scipy.fft.rfft2(padded, axes=(-2, -1), workers=-1)
 
     def inverse(self, spectrum):
         pad = self.pad
-        image = scipy.fft.ifft2(spectrum, axes=(-2, -1), workers=-1).real
+        image = scipy.fft.irfft2(spectrum, s=self.padded, axes=(-2, -1), workers=-1)
         return image[..., pad: image.shape[-2] - pad, pad: image.shape[-1] - pad]
 
     def apply(self, stack, transfer):
@@ -397,14 +400,19 @@ def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible):
 
     leaks = [fourier.inverse(gain[i] * direct_spectra[j]) for i, j in pairs]
     observed = [orthogonal(fourier.inverse(gain[j] * direct_spectra[i]) - leak, leak) for (i, j), leak in zip(pairs, leaks)]
-    best = None
-    for roughness in ROUGHNESS_GRID:
+
+    def fit(roughness):
         lobe = specular_lobe(normals, lights, roughness) * visible
         spectrum = fourier.forward(lobe)
         predicted = [orthogonal(fourier.inverse((gain[j] - gain[i]) * spectrum), leak) for (i, j), leak in zip(pairs, leaks)]
         scale = max(0.0, sum(float((o * p).sum()) for o, p in zip(observed, predicted)) / sum(float((p * p).sum()) for p in predicted))
         cost = sum(float(((o - scale * p) ** 2).sum()) for o, p in zip(observed, predicted))
-        if best is None or cost < best[0]:
-            best = (cost, float(roughness), scale, lobe)
+        return cost, float(roughness), scale, lobe
+
+    # every other grid value, then the two neighbours of the best (the misfit is unimodal in m)
+    coarse = {k: fit(ROUGHNESS_GRID[k]) for k in range(0, len(ROUGHNESS_GRID), 2)}
+    middle = min(coarse, key=lambda k: coarse[k][0])
+    fine = {k: fit(ROUGHNESS_GRID[k]) for k in (middle - 1, middle + 1) if 0 <= k < len(ROUGHNESS_GRID)}
+    best = min([*coarse.values(), *fine.values()], key=lambda result: result[0])
     _, roughness, scale, lobe = best
     return {"roughness": roughness, "scale": scale}, scale * lobe

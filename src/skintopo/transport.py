@@ -90,23 +90,26 @@ def interreflection_operator(z, normals, pixel, *, radius_um, n_azimuth=16, min_
     sources, targets, weights = [], [], []
     for j in range(n_azimuth):
         azimuth = (j + 0.5) * d_azimuth
-        a = nx * np.cos(azimuth) + ny * np.sin(azimuth)
-        horizon = np.arctan2(-a, nz)  # tangent-plane elevation: n . omega = 0
+        a = (nx * np.cos(azimuth) + ny * np.sin(azimuth)).ravel()
+        n_z = nz.ravel()
 
-        def primitive(e, region):
-            return a[region] * (e / 2 + np.sin(2 * e) / 4) + nz[region] * np.sin(e) ** 2 / 2
+        def primitive(e, pixels):
+            return a[pixels] * (e / 2 + np.sin(2 * e) / 4) + n_z[pixels] * np.sin(e) ** 2 / 2
 
+        horizon = np.arctan2(-a, n_z)  # tangent-plane elevation: n . omega = 0
+        covered = primitive(horizon, slice(None))  # the primitive at the current horizon, per pixel
         for source, target, _, elevation in _march(z, pixel, azimuth, steps):
-            old = horizon[source]
-            rises = elevation > old
+            pixels = index[source].ravel()
+            rises = elevation.ravel() > horizon[pixels]
             if not rises.any():
                 continue
-            new = np.where(rises, elevation, old)
-            weight = (primitive(new, source) - primitive(old, source)) * (d_azimuth / np.pi)
-            horizon[source] = new
-            keep = rises & (weight > min_weight)
-            sources.append(index[source][keep])
-            targets.append(index[target][keep])
+            pixels, new = pixels[rises], elevation.ravel()[rises]
+            above = primitive(new, pixels)
+            weight = (above - covered[pixels]) * (d_azimuth / np.pi)
+            horizon[pixels], covered[pixels] = new, above
+            keep = weight > min_weight
+            sources.append(pixels[keep])
+            targets.append(index[target].ravel()[rises][keep])
             weights.append(weight[keep])
     if not sources:
         return scipy.sparse.csr_matrix((rows * columns, rows * columns))
