@@ -41,10 +41,12 @@ Estimation, alternating until the height stops changing (``tolerance``):
    per iteration. The last iteration's height is returned, unless the height changed by more
    than half its RMS in one pass (diverging): then the one before.
 
-Known limits (numbers in docs/method.md): the specular fit relies on the lobe's shape and
-the current normals; on dark skin, where highlights are large against the diffuse part, it
-leaves wrinkles too deep. The kernel fit needs the field to span at least a few times the
-red diffusion length (a 5 mm field holds it).
+Known limits (numbers in docs/method.md): the highlight fit assumes a white highlight; a
+slightly coloured one (Fresnel dispersion) cannot be told from a stronger white one plus a
+skin-coloured part, so its scale comes out high and the deepest wrinkles on dark skin come
+out too shallow; a smooth coat (Beckmann alpha 0.2) defeats the fit. The kernel fit needs
+the field to span several times the red diffusion length (a 5 mm field holds it). The
+iteration often stops at its pass limit before the 2% tolerance (reported).
 """
 
 from __future__ import annotations
