@@ -158,6 +158,12 @@ def test_correct_physics_writes_the_height_and_physics_json(tmp_path):
     record = json.loads((tmp_path / "out" / "physics.json").read_text())
     assert set(record["kernels"]) == set(BANDS) and record["iterations"] >= 1 and isinstance(record["converged"], bool)
     assert (tmp_path / "out" / "height.x3p").is_file()
+    measured = subprocess.run([*run, "measure", str(acquisition), "-o", str(tmp_path / "measured"), "--method", "physics"],
+                              capture_output=True, text=True)
+    assert measured.returncode == 0, measured.stderr
+    assert "measured height: physics" in measured.stdout
+    kept = json.loads((tmp_path / "measured" / "parameters.json").read_text())["summary"]["source"]["physics"]
+    assert kept["kernels"] == record["kernels"] and kept["converged"] == record["converged"]
     only_two = tmp_path / "two"
     subprocess.run([*run, "synth", "-o", str(only_two), "--size", "32", "-q"], check=True)
     manifest = json.loads((only_two / "acquisition.json").read_text())
