@@ -100,6 +100,12 @@ def _state(pid):
         return "Z"
 
 
+def finished_results(out, pattern="items/*/*/*/batch.json"):
+    """Stamps of published results; a stamp inside a staging folder (``.NAME.partial``) is not
+    one yet (the item is written whole in staging, stamp included, then renamed)."""
+    return [p for p in out.glob(pattern) if not any(part.startswith(".") for part in p.relative_to(out).parts)]
+
+
 def assert_items_complete(out):
     """Every visible item folder is complete (stamped, with its files); staging folders aside."""
     for kind, needed in (("items", "parameters.json"), ("changes", "changes.json")):
@@ -162,7 +168,7 @@ def test_dask_worker_killed_mid_study_loses_and_duplicates_nothing(twelve, tmp_p
         thread = threading.Thread(target=lambda: outcome.update(result=run_study(twelve, out, scheduler=cluster.scheduler_address)))
         thread.start()
         deadline = time.time() + 120
-        while time.time() < deadline and not list(out.glob("items/*/*/*/batch.json")):
+        while time.time() < deadline and not finished_results(out):
             time.sleep(0.05)
         with distributed.Client(cluster) as client:
             victim = next(iter(client.run(os.getpid).values()))
@@ -201,7 +207,7 @@ def test_sigterm_stops_the_workers_at_once_and_a_rerun_finishes(twelve, tmp_path
     out = tmp_path / "out"
     process = subprocess.Popen([*CLI, "batch", str(twelve), "-o", str(out), "-q"], stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
-    while time.time() < deadline and not list(out.glob("items/*/*/*/batch.json")):
+    while time.time() < deadline and not finished_results(out):
         time.sleep(0.05)
     children = descendants(process.pid)
     assert children
@@ -212,7 +218,7 @@ def test_sigterm_stops_the_workers_at_once_and_a_rerun_finishes(twelve, tmp_path
     assert process.returncode == 128 + signal.SIGTERM and "interrupted" in stderr and "run the same command again" in stderr
     assert_gone(children)
     assert_items_complete(out)
-    finished = len(list(out.glob("items/*/*/*/batch.json")))
+    finished = len(finished_results(out))
     assert 1 <= finished < 12
     counts, _, _ = run_study(twelve, out, workers=2)
     assert counts["skipped"] == finished and counts["computed"] == 20 - finished
@@ -224,13 +230,13 @@ def test_interrupted_batch_resumes_without_recomputing(study, local_run, tmp_pat
     process = subprocess.Popen([*CLI, "batch", str(study), "-o", str(out), "--workers", "1", "-q"], start_new_session=True,
                                stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
-    while time.time() < deadline and len(list(out.glob("items/*/*/*/batch.json"))) < 2:
+    while time.time() < deadline and len(finished_results(out)) < 2:
         time.sleep(0.1)
     os.killpg(process.pid, signal.SIGINT)  # Ctrl-C, to the whole process group as a terminal would
     process.wait(timeout=60)
     # every finished result, measures (items/) and comparisons (changes/, repeats/): on a loaded
     # machine the run may get further than the first two measures before the signal lands
-    finished = len(list(out.glob("*/*/*/*/batch.json")))
+    finished = len(finished_results(out, "*/*/*/*/batch.json"))
     assert finished >= 2
     assert not list(out.glob("items/**/.*.partial"))  # nothing half-written
     counts, _, _ = run_study(study, out, workers=2)
