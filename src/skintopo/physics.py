@@ -123,6 +123,14 @@ class PhysicsResult:
     kernel_fit_rms: float
     components: dict = field(default_factory=dict)
 
+    def convergence_note(self):
+        """A sentence for the user when the iteration did not converge, else None."""
+        if self.converged:
+            return None
+        state = "diverged (the pass before it is kept)" if self.diverged else "did not converge"
+        return (f"the physics height {state} in {self.iterations} passes "
+                f"(relative height changes {[round(c, 3) for c in self.changes]})")
+
     def as_dict(self):
         return {
             "method": "physics",

@@ -280,10 +280,8 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
               "height": made.description}
     if made.physics is not None:
         source["physics"] = made.physics.as_dict()  # kernels, highlight lobe, convergence: kept with the result
-        if not made.physics.converged and on_note is not None:
-            state = "diverged (the pass before it is kept)" if made.physics.diverged else "did not converge"
-            on_note(f"the physics height {state} in {made.physics.iterations} passes "
-                    f"(relative height changes {[round(c, 3) for c in made.physics.changes]})")
+        if made.physics.convergence_note() and on_note is not None:
+            on_note(made.physics.convergence_note())
     return measure_height(made.height, options, albedo=made.albedo, source=source)
 
 

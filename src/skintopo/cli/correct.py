@@ -44,10 +44,8 @@ def run(args):
             write_json(staging / "physics.json", made.physics.as_dict())
         summary["seconds_total"] = time.perf_counter() - started
         write_json(staging / "summary.json", summary)
-    if made.physics is not None and not made.physics.converged:
-        state = "diverged (the lowest-residual iteration before it is kept)" if made.physics.diverged else "did not converge"
-        shared.say(args, f"warning: the physics height {state} in {made.physics.iterations} iterations "
-                         f"(relative height changes {[round(c, 3) for c in made.physics.changes]}); see physics.json")
+    if made.physics is not None and made.physics.convergence_note():
+        shared.say(args, f"warning: {made.physics.convergence_note()}; see physics.json")
     shared.say(args, f"{segmentation.count} wrinkle(s) segmented; height: {made.description}, in {Path(args.out).resolve() / 'height.x3p'}")
     return 0
 
