@@ -172,12 +172,13 @@ def band_transfer_ratios(scaled_normals, spacing):
         Blue's power per ring (a weight: rings without signal say nothing).
     """
     spectra = {}
+    shape = scaled_normals["blue"].shape[:2]
+    window = np.outer(np.hanning(shape[0]), np.hanning(shape[1]))
     for band, g in scaled_normals.items():
         albedo = np.nanmedian(np.linalg.norm(g, axis=-1))
-        window = np.outer(np.hanning(g.shape[0]), np.hanning(g.shape[1]))
         spectra[band] = [scipy.fft.fft2(np.nan_to_num((g[..., k] - np.nanmean(g[..., k])) / albedo) * window) for k in (0, 1)]
-    f = _frequencies(g.shape[:2], spacing)
-    step = 1 / (max(spacing[0] * g.shape[0], spacing[1] * g.shape[1]))
+    f = _frequencies(shape, spacing)
+    step = 1 / (max(spacing[0] * shape[0], spacing[1] * shape[1]))
     rings = int(0.5 / max(spacing) / step)
     index = np.minimum(np.rint(f / step).astype(int), rings + 1).ravel()
     power = np.bincount(index, sum(np.abs(s) ** 2 for s in spectra["blue"]).ravel(), rings + 2)[: rings + 1]
