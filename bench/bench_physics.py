@@ -5,9 +5,11 @@ error| of the wrinkles' max depth, per method; an ablation (each component off) 
 and, with ``--speed``, the time of physics on a 1000 x 1000 acquisition (12 images).
 Results: bench/results/physics.json and physics_speed.json.
 
-Run from bench/: ``python bench_physics.py [SEEDS]`` (default 6 seeds), ``python bench_physics.py --speed``.
+Run from bench/: ``python bench_physics.py [SEEDS] [--optics PROFILE]`` (default 6 seeds, the
+default-v1 skin optics; another profile writes physics-PROFILE.json), ``python bench_physics.py --speed``.
 """
 
+import argparse
 import sys
 import time
 
@@ -19,7 +21,7 @@ from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
 from skintopo.physics import physics_height
-from skintopo.synth import make_surface, preset_spec, simulate_acquisition
+from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
 
 BANDS = ("red", "green", "blue", "white")
@@ -37,9 +39,10 @@ def scores(height, surface):
             "depth_bias": round(float(np.mean(np.array(found["wrinkle_max_depth_um"]) / found["wrinkle_max_depth_true_um"] - 1)), 4)}
 
 
-def case(preset, skin, seed, ablation):
+def case(preset, skin, seed, ablation, optics="default-v1"):
     surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
-    bands, info = simulate_acquisition(surface, RenderSettings(skin=skin, lights=default_lights()), seed=seed)
+    settings = RenderSettings(skin=skin, lights=default_lights(), optics=optics_profile(optics))
+    bands, info = simulate_acquisition(surface, settings, seed=seed)
     images = {band: bands[band][0] / info["exposure_gain"][band] for band in BANDS}
     lights = bands["red"][1]
     row, normals = {}, {}
@@ -57,13 +60,12 @@ def case(preset, skin, seed, ablation):
     return row
 
 
-def main():
-    seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 6
+def main(seeds, optics):
     cases = []
     for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
         for skin in ("light", "dark"):
             for seed in range(1, seeds + 1):
-                row = case(preset, skin, seed, ablation=seed == 1)
+                row = case(preset, skin, seed, ablation=seed == 1, optics=optics)
                 cases.append({"preset": preset, "skin": skin, "seed": seed, "results": row})
                 best_other = min(v["rms_um"] for k, v in row.items() if k in (*BANDS, "paper", "feathered"))
                 print(preset, skin, seed, "physics", row["physics"]["rms_um"], "best other", best_other, flush=True, file=sys.stderr)
@@ -72,7 +74,7 @@ def main():
                    "mean_depth_error": round(float(np.mean([c["results"][m]["depth_error"] for c in cases])), 4)} for m in methods}
     wins = sum(all(c["results"]["physics"]["rms_um"] < c["results"][m]["rms_um"] for m in methods[:-1]) for c in cases)
     depth_wins = sum(all(c["results"]["physics"]["depth_error"] < c["results"][m]["depth_error"] for m in methods[:-1]) for c in cases)
-    write_result("physics", {"summary": summary, "physics_best_rms_cases": f"{wins}/{len(cases)}",
+    write_result("physics" if optics == "default-v1" else f"physics-{optics}", {"optics": optics, "summary": summary, "physics_best_rms_cases": f"{wins}/{len(cases)}",
                              "physics_best_depth_cases": f"{depth_wins}/{len(cases)}", "cases": cases})
 
 
@@ -89,4 +91,9 @@ def speed():
 
 
 if __name__ == "__main__":
-    speed() if sys.argv[1:] == ["--speed"] else main()
+    parser = argparse.ArgumentParser()
+    parser.add_argument("seeds", nargs="?", type=int, default=6)
+    parser.add_argument("--optics", default="default-v1")
+    parser.add_argument("--speed", action="store_true")
+    arguments = parser.parse_args()
+    speed() if arguments.speed else main(arguments.seeds, arguments.optics)

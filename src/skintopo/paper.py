@@ -21,7 +21,7 @@ from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
 from skintopo.report import cross_section_pngs
 from skintopo.segmentation import segmentation_quality
-from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+from skintopo.synth import default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition
 
 
 @dataclass(frozen=True)
@@ -41,14 +41,19 @@ SUBJECTS = (
 COLUMNS = ("red", "green", "blue", "white", "algorithm", "algorithm-feathered")
 
 
-def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0):
-    """Simulate, reconstruct, correct and evaluate one subject. Returns a dict."""
+def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0, optics="default-v1", solver="least-squares"):
+    """Simulate, reconstruct, correct and evaluate one subject. Returns a dict.
+
+    ``optics`` is a skin-optics profile or its name (:mod:`skintopo.synth.optics`); ``solver``
+    the photometric-stereo solver (the paper's is least squares).
+    """
     started = time.perf_counter()
     surface = make_surface(preset_spec(subject.preset, size_px=size_px, pixel_um=pixel_um), seed=subject.seed)
-    bands, _ = simulate_acquisition(surface, default_settings(skin=subject.skin), seed=subject.seed + 1000)
+    settings = default_settings(skin=subject.skin, optics=optics_profile(optics))
+    bands, _ = simulate_acquisition(surface, settings, seed=subject.seed + 1000)
     normals, heights = {}, {}
     for band in ("red", "green", "blue", "white"):
-        stereo = photometric_stereo(*bands[band])
+        stereo = photometric_stereo(*bands[band], solver=solver)
         normals[band] = stereo.normals
         heights[band] = integrate_normals(stereo.normals, pixel_um, mask=stereo.valid)
     paper = spectral_correction(normals, pixel_um, method="paper")
@@ -93,12 +98,12 @@ def _figures(folder, result):
     (folder / "figure5_algorithm_vs_truth.png").write_bytes(base64.b64decode(figure5))
 
 
-def paper_tables(folder, *, size_px=256, pixel_um=20.0, progress=None):
+def paper_tables(folder, *, size_px=256, pixel_um=20.0, optics="default-v1", progress=None):
     """Run all subjects and write Table 1, Table 2, the wrinkle-depth table and the figures
     into ``folder``. Returns the per-subject results."""
     results = []
     for subject in SUBJECTS:
-        results.append(run_subject(subject, size_px=size_px, pixel_um=pixel_um))
+        results.append(run_subject(subject, size_px=size_px, pixel_um=pixel_um, optics=optics))
         if progress:
             progress(subject)
     text = [

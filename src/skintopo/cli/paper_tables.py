@@ -12,12 +12,14 @@ from skintopo.outputs import check_output_folder, staged_output_folder
 
 def run(args):
     from skintopo.paper import paper_tables
+    from skintopo.synth import optics_profile
 
+    optics = optics_profile(args.optics)
     check_output_folder(args.out, overwrite=args.overwrite)
     with staged_output_folder(args.out, overwrite=args.overwrite) as staging:
-        _, text = paper_tables(staging, size_px=args.size, pixel_um=args.pixel_um,
+        _, text = paper_tables(staging, size_px=args.size, pixel_um=args.pixel_um, optics=optics,
                                progress=None if args.quiet else lambda s: print(f"subject {s.number} done", file=sys.stderr))
-    shared.say(args, text + f"\n\nwrote {Path(args.out).resolve()}")
+    shared.say(args, f"skin optics: {optics.name}\n\n" + text + f"\n\nwrote {Path(args.out).resolve()}")
     return 0
 
 
@@ -26,5 +28,7 @@ def add_parser(commands):
     tables.add_argument("-o", "--out", type=Path, required=True, help="output folder (tables as CSV and Markdown, figures as PNG)")
     tables.add_argument("--size", type=shared.size, default=256, help="field size in pixels (default 256)")
     tables.add_argument("--pixel-um", type=shared.positive_float, default=20.0, help="pixel size of the simulated fields in micrometres (default 20)")
+    tables.add_argument("--optics", default="default-v1", metavar="PROFILE",
+                        help="skin-optics profile of the simulated subjects: default-v1 (default), literature, paper-calibrated")
     shared.add_output_switches(tables)
     tables.set_defaults(handler=run)

@@ -13,7 +13,8 @@ from skintopo.outputs import check_output_folder
 
 
 def run(args):
-    from skintopo.synth import PRESETS, Effects, default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
+    from skintopo.synth import (PRESETS, Effects, default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition,
+                                write_synthetic_acquisition)
 
     if args.preset not in PRESETS:
         raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")
@@ -33,7 +34,8 @@ def run(args):
         translucency=not args.no_translucency,
         albedo_variation=not args.no_albedo_variation,
     )
-    settings = default_settings(skin=args.skin, effects=effects, noise=args.noise, saturate=args.saturate)
+    settings = default_settings(skin=args.skin, optics=optics_profile(args.optics), effects=effects, noise=args.noise,
+                                saturate=args.saturate)
     started = time.perf_counter()
     surface = make_surface(spec, seed=args.seed)
     capture_seed = args.seed if args.capture_seed is None else args.capture_seed
@@ -42,7 +44,7 @@ def run(args):
                                 capture_seed=capture_seed)
     shared.say(
         args,
-        f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin, {spec.size_px[1]}x{spec.size_px[0]} px "
+        f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin ({args.optics} optics), {spec.size_px[1]}x{spec.size_px[0]} px "
         f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s",
     )
     return 0
@@ -72,6 +74,9 @@ def add_parser(commands):
     synth.add_argument("-o", "--out", type=Path, required=True, help="output acquisition folder")
     synth.add_argument("--preset", default="forehead-moderate", help="flat-microrelief, forehead-low, forehead-moderate (default), forehead-high")
     synth.add_argument("--skin", choices=["light", "dark"], default="light", help="albedo preset (default light)")
+    synth.add_argument("--optics", default="default-v1", metavar="PROFILE",
+                       help="skin-optics profile (albedo, subsurface scattering, surface reflection): default-v1 (default), "
+                       "literature, paper-calibrated; see the method docs")
     synth.add_argument("--size", type=shared.size, default=256, help="field size in pixels (square, default 256)")
     synth.add_argument("--pixel-um", type=shared.positive_float, default=20.0, help="pixel size in micrometres (default 20)")
     synth.add_argument("--seed", type=int, default=0, help="random seed of the skin (default 0): the same seed is the same skin")

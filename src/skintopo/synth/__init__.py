@@ -33,11 +33,15 @@ import numpy as np
 from skintopo.acquisition import write_acquisition
 from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
+from skintopo.synth.optics import PROFILES, SkinOptics, optics_profile
 from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, make_surface
 
 __all__ = [
     "PRESETS",
+    "PROFILES",
+    "SkinOptics",
+    "optics_profile",
     "Effects",
     "RenderSettings",
     "SkinSurface",
@@ -144,6 +148,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
             "surface": surface.describe(),
             "render": {
                 "skin": settings.skin,
+                "optics": settings.optics.describe(),
                 "lights": np.asarray(settings.lights).tolist(),
                 "effects": asdict(settings.effects),
                 "interreflection_radius_um": settings.interreflection_radius_um,

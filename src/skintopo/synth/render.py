@@ -15,16 +15,16 @@ Diffuse, with cast shadows and interreflection (radiosity)
     B ~ rho E / (1 - rho F) in a groove of form factor F (field notes).
 
 Translucency
-    T[I] = (1 - w) I + w (G_sigma * I): a fraction w of the diffuse light re-emerges spread by
-    a Gaussian of width sigma, widest in red (deepest penetration; field notes: diffusion
-    length red > green > blue).
+    T[I] = sum_k w_k G_sigma_k * I: the band's diffusion profile, a sum of normalised Gaussians
+    (a width of 0 is light re-emerging where it entered), widest in red (deepest penetration).
+    The weights and widths come from the skin-optics profile (:mod:`skintopo.synth.optics`).
 
 Specular (Torrance-Sparrow with Beckmann facets and Fresnel)
     I_s = k_s pi F(v.h; eta) D(n.h) G / (4 n.v) V_s,
     D = exp(-tan^2 alpha / m^2) / (pi m^2 cos^4 alpha),  G = min(1, 2 (n.h)(n.v)/(v.h), 2 (n.h)(n.l)/(v.h)),
-    with roughness m = 0.35 and refractive index eta = 1.38 (field notes), with a slight
-    normal dispersion per band (1.37 red, 1.38 green, 1.39 blue). Relative to the diffuse part
-    it weighs most where the albedo is lowest (blue), biasing those normals.
+    times the profile's specular scale k_s, with its roughness m and refractive index eta per
+    band (``default-v1``: m = 0.35, eta 1.37 / 1.38 / 1.39). Relative to the diffuse part it
+    weighs most where the albedo is lowest (blue), biasing those normals.
 
 Sensor
     auto-exposure per band, shot noise (full well 20 000 e-), read noise (3 e-), both scaled
@@ -38,20 +38,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.ndimage
 
+from skintopo.synth.optics import DEFAULT_V1, SkinOptics
 from skintopo.transport import cast_shadow, interreflection_operator
 
 BAND_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0}
-SKIN_ALBEDO = {  # diffuse albedo red/green/blue (field notes: NCSU skin reflectance data)
-    "light": {"red": 0.60, "green": 0.41, "blue": 0.33},
-    "dark": {"red": 0.42, "green": 0.22, "blue": 0.13},
-}
-TRANSLUCENCY = {  # (fraction re-emerging spread, Gaussian sigma in um): red widest
-    "red": (0.5, 250.0),
-    "green": (0.35, 150.0),
-    "blue": (0.25, 90.0),
-}
-FRESNEL_INDEX = {"red": 1.37, "green": 1.38, "blue": 1.39}
-SPECULAR_ROUGHNESS = 0.35
 FULL_WELL_ELECTRONS = 20000.0
 READ_NOISE_ELECTRONS = 3.0
 ALBEDO_VARIATION = 0.05  # relative RMS of the mild spatial albedo variation
@@ -79,13 +69,6 @@ def default_lights(slant_degrees=45.0, count=4):
     slant = np.radians(slant_degrees)
     tilt = 2 * np.pi * np.arange(count) / count
     return np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.full(count, np.cos(slant))], axis=1)
-
-
-def translucency_operator(weight, sigma_px):
-    """T[I] = (1 - w) I + w G_sigma * I (reflecting borders); identity when w = 0."""
-    if weight <= 0 or sigma_px <= 0:
-        return lambda image: image
-    return lambda image: (1 - weight) * image + weight * scipy.ndimage.gaussian_filter(image, sigma_px, mode="reflect")
 
 
 def solve_radiosity(direct, albedo, operator, *, transport=None, bounces=None, tolerance=1e-7, max_iterations=200):
@@ -140,7 +123,7 @@ def fresnel_dielectric(cos_incidence, eta):
     return 0.5 * a**2 * (1 + b**2)
 
 
-def torrance_sparrow(normals, light, *, roughness=SPECULAR_ROUGHNESS, eta=1.38):
+def torrance_sparrow(normals, light, *, roughness=0.35, eta=1.38):
     """Specular intensity pi F D G / (4 n.v) for unit light and view v = (0, 0, 1)."""
     light = np.asarray(light, dtype=float)
     view = np.array([0.0, 0.0, 1.0])
@@ -165,14 +148,14 @@ class RenderSettings:
     effects: Effects = field(default_factory=Effects)
     interreflection_radius_um: float | None = None  # default: the widest wrinkle, at least 0.4 mm
     n_azimuth: int = 16
-    specular_strength: float = 1.0
-    specular_roughness: float = SPECULAR_ROUGHNESS  # Beckmann m (skin 0.3-0.45, field notes; oily skin smoother)
+    optics: SkinOptics = DEFAULT_V1  # albedo, diffusion profiles, surface reflection (synth.optics)
+    specular_strength: float = 1.0  # multiplies the profile's specular scale
+    specular_roughness: float | None = None  # Beckmann m; None: the profile's (skin 0.3-0.45, field notes)
     noise: float = 1.0
     saturate: bool = False
 
 
-def _albedo_maps(shape, pixel, skin, vary, rng):
-    base = SKIN_ALBEDO[skin]
+def _albedo_maps(shape, pixel, base, vary, rng):
     if not vary:
         return {band: np.full(shape, value) for band, value in base.items()}
     pattern = scipy.ndimage.gaussian_filter(rng.standard_normal(shape), sigma=max(1.0, 200.0 / pixel), mode="wrap")
@@ -190,7 +173,9 @@ def render_bands(height, normals, settings: RenderSettings, rng):
     pixel = height.spacing[1]
     lights = np.asarray(settings.lights, dtype=float)
     effects = settings.effects
-    albedo = _albedo_maps(z.shape, pixel, settings.skin, effects.albedo_variation, rng)
+    optics = settings.optics
+    albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
+    roughness = optics.specular_roughness if settings.specular_roughness is None else settings.specular_roughness
     operator = None
     info = {"interreflection_nonzeros": 0, "iterations": {}}
     if effects.interreflection:
@@ -202,16 +187,15 @@ def render_bands(height, normals, settings: RenderSettings, rng):
         direct *= ~np.stack([cast_shadow(z, pixel, light) for light in lights])
     images = {}
     for band in ("red", "green", "blue"):
-        weight, sigma_um = TRANSLUCENCY[band]
-        transport = translucency_operator(weight, sigma_um / pixel) if effects.translucency else None
+        transport = optics.scattering[band].operator(z.shape, pixel) if effects.translucency else None
         stack = []
         for i, light in enumerate(lights):
             radiosity, iterations, _ = solve_radiosity(direct[i], albedo[band], operator, transport=transport, bounces=effects.bounces)
             info["iterations"][f"{band}_{i}"] = iterations
             if effects.specular:
                 lit = direct[i] > 0
-                lobe = torrance_sparrow(normals, light, roughness=settings.specular_roughness, eta=FRESNEL_INDEX[band])
-                radiosity = radiosity + settings.specular_strength * lit * lobe
+                lobe = torrance_sparrow(normals, light, roughness=roughness, eta=optics.fresnel_index[band])
+                radiosity = radiosity + settings.specular_strength * optics.specular_scale * lit * lobe
             stack.append(radiosity)
         images[band] = np.stack(stack)
     return images, info
