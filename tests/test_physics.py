@@ -15,7 +15,7 @@ from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
 from skintopo.physics import ScatteringKernel, estimate_scattering_kernels, physics_height
-from skintopo.synth import make_surface, preset_spec, simulate_acquisition
+from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
 
 BANDS = ("red", "green", "blue")
@@ -60,9 +60,9 @@ def test_scattering_kernels_are_recovered_from_the_bands_alone(shape):
     assert misfit < 0.02
 
 
-def _simulated(preset, skin, seed, size=256):
+def _simulated(preset, skin, seed, size=256, optics="default-v1"):
     surface = make_surface(preset_spec(preset, size_px=size), seed=seed)
-    bands, info = simulate_acquisition(surface, RenderSettings(skin=skin, lights=default_lights()), seed=seed)
+    bands, info = simulate_acquisition(surface, RenderSettings(skin=skin, lights=default_lights(), optics=optics_profile(optics)), seed=seed)
     return surface, {b: bands[b][0] / info["exposure_gain"][b] for b in (*BANDS, "white")}, bands["red"][1]
 
 
@@ -85,7 +85,7 @@ def test_physics_beats_every_band_and_the_paper_in_the_simulator(skin):
     others = _band_and_paper_errors(images, lights, surface)
     assert found["rms_height_error_um"] < 0.75 * min(others.values()), (found["rms_height_error_um"], others)
     assert max(found["wrinkle_depth_error_relative"]) < 0.12
-    assert not result.diverged
+    assert not result.diverged and result.plausible
     red = result.kernels["red"]
     assert 0.3 < red.weight < 0.7 and 150 < red.length_um < 400  # the simulator's red: 50% spread, Gaussian 250 um
 
@@ -105,6 +105,19 @@ def test_physics_degrades_gracefully_with_a_wrong_light_intensity_and_8_bit_imag
     result = physics_height({b: damaged[b] for b in BANDS}, lights, 20.0)
     error = evaluate_height(result.height, surface.height)["rms_height_error_um"]
     assert error < 1.1 * min(others[b] for b in (*BANDS, "white")), (error, others)
+
+
+@pytest.mark.slow
+def test_physics_says_when_its_model_does_not_describe_the_images():
+    """The paper-calibrated skin optics (a specular scale of 8 on a narrow diffusion profile)
+    is outside what the physics height models: it must not return its height silently (it did,
+    180 um RMS on 60 um wrinkles, before the gain cap and the plausibility check)."""
+    surface, images, lights = _simulated("forehead-low", "dark", seed=1, optics="paper-calibrated")
+    result = physics_height({b: images[b] for b in BANDS}, lights, 20.0)
+    print(result.agreement, result.convergence_note())
+    assert not result.plausible
+    assert "do not use it" in result.convergence_note()
+    assert result.as_dict()["plausible"] is False
 
 
 def test_physics_needs_red_green_and_blue_under_the_same_lights():

@@ -59,6 +59,7 @@ import scipy.ndimage
 import scipy.optimize
 
 from skintopo.errors import SkinTopoError
+from skintopo.filters import polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
@@ -69,6 +70,9 @@ REQUIRED_BANDS = ("red", "green", "blue")
 DEFAULT_ITERATIONS = 4
 DEFAULT_TOLERANCE = 0.02  # stop when the RMS height change is below 2% of the height's RMS
 DIVERGENCE = 0.5  # a height that changes by more than half its RMS in one iteration is diverging
+MAX_DECONVOLUTION_GAIN = 4.0  # at most this amplification of any spatial frequency of the shading
+PLAUSIBLE_RELIEF = (1 / 3, 3.0)  # physics relief / the plain bands' mean relief, outside: not plausible
+PLAUSIBLE_CORRELATION = 0.5  # least correlation of the physics height with the plain bands' mean height
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
 ROUGHNESS_GRID = np.linspace(0.15, 0.7, 12)  # Beckmann m searched (skin 0.3-0.45, oily skin smoother: field notes)
@@ -122,14 +126,29 @@ class PhysicsResult:
     diverged: bool
     kernel_fit_rms: float
     components: dict = field(default_factory=dict)
+    agreement: dict = field(default_factory=dict)
+
+    @property
+    def plausible(self):
+        """The height agrees with plain photometric stereo to within the limits of
+        ``PLAUSIBLE_RELIEF`` and ``PLAUSIBLE_CORRELATION`` (a sanity check, not a validation)."""
+        low, high = PLAUSIBLE_RELIEF
+        return bool(low <= self.agreement.get("relief_ratio", 1.0) <= high
+                    and self.agreement.get("correlation", 1.0) >= PLAUSIBLE_CORRELATION)
 
     def convergence_note(self):
-        """A sentence for the user when the iteration did not converge, else None."""
-        if self.converged:
-            return None
-        state = "diverged (the pass before it is kept)" if self.diverged else "did not converge"
-        return (f"the physics height {state} in {self.iterations} passes "
-                f"(relative height changes {[round(c, 3) for c in self.changes]})")
+        """A sentence for the user when the iteration did not converge or the height is not
+        plausible, else None."""
+        notes = []
+        if not self.converged:
+            state = "diverged (the pass before it is kept)" if self.diverged else "did not converge"
+            notes.append(f"the physics height {state} in {self.iterations} passes "
+                         f"(relative height changes {[round(c, 3) for c in self.changes]})")
+        if not self.plausible:
+            notes.append(f"the physics height disagrees with plain photometric stereo (relief {self.agreement['relief_ratio']:.2f}x "
+                         f"the bands' mean, correlation {self.agreement['correlation']:.2f}): its model does not describe "
+                         "these images; do not use it")
+        return "; ".join(notes) or None
 
     def as_dict(self):
         return {
@@ -143,6 +162,8 @@ class PhysicsResult:
             "rms_residuals": self.residuals,
             "converged": self.converged,
             "diverged": self.diverged,
+            "agreement_with_plain_bands": self.agreement,
+            "plausible": self.plausible,
         }
 
 
@@ -336,9 +357,10 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
     spacing = pixel_spacing(spacing)
     shape = images["red"].shape[1:]
     mask = np.ones(shape, bool) if mask is None else np.asarray(mask, dtype=bool)
-    scaled_normals, albedo_level = {}, {}
+    scaled_normals, albedo_level, plain = {}, {}, []
     for band in REQUIRED_BANDS:
         stereo = photometric_stereo(images[band], lights, mask=mask)
+        plain.append(integrate_normals(stereo.normals, spacing, mask=mask & stereo.valid, method=integrator))
         scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
         albedo_level[band] = float(np.nanmedian(stereo.albedo))
         fitted = np.einsum("rck,mk->mrc", np.nan_to_num(scaled_normals[band]), lights)
@@ -349,6 +371,9 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
     fourier = _Filter(shape, spacing, pad)
     transfer = {band: kernels[band].transfer(fourier.frequency) for band in REQUIRED_BANDS}
     gain = np.stack([albedo_level[band] * transfer[band] for band in REQUIRED_BANDS])  # a_c(f)
+    power = (gain**2).sum(0)
+    # S = (sum_c a_c J_c / sum_c a_c^2) min(1, G / A), A = sqrt(sum_c rho_c^2 / sum_c a_c^2) the deconvolution's gain
+    fusion = gain / power * np.minimum(1.0, MAX_DECONVOLUTION_GAIN * np.sqrt(power / sum(albedo_level[b] ** 2 for b in REQUIRED_BANDS)))
     specular_images = np.zeros_like(images["red"])
     albedo_pattern = np.ones(shape)
     direct = dict(images)  # I_c - T_c[rho_c v K B_c]: no interreflection known yet
@@ -358,7 +383,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
     previous = best = None
     for _ in range(iterations):
         spectra = np.stack([fourier.forward(direct[band] - specular_images) for band in REQUIRED_BANDS])
-        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", gain, spectra) / (gain**2).sum(0))
+        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, spectra))
         stereo = photometric_stereo(shading, lights, mask=mask)
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
         height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
@@ -392,7 +417,21 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
                   "interreflection_radius_um": radius_um if interreflection else None,
                   "interreflection_grid_factor": gather.factor if gather is not None else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
-                         converged, diverged, kernel_fit_rms, components)
+                         converged, diverged, kernel_fit_rms, components, _agreement(height, plain))
+
+
+def _agreement(height, plain):
+    """Relief ratio and correlation of ``height`` with the mean of the plain band heights,
+    both levelled (least-squares plane removed) over their common points."""
+    common = height.mask & np.logical_and.reduce([p.mask for p in plain])
+
+    def levelled(z):
+        z = np.where(common, z, 0.0)
+        return (z - polynomial_form(z, height.spacing, 1, common))[common]
+
+    found, reference = levelled(height.z), levelled(np.mean([p.z for p in plain], axis=0))
+    return {"relief_ratio": round(float(found.std() / max(reference.std(), 1e-12)), 4),
+            "correlation": round(float(np.corrcoef(found, reference)[0, 1]), 4)}
 
 
 def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible):
