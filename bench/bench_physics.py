@@ -56,7 +56,8 @@ def case(preset, skin, seed, ablation, optics="default-v1"):
         start = time.perf_counter()
         result = physics_height(images, lights, 20.0, **switches)
         row[name] = scores(result.height, surface) | {"seconds": round(time.perf_counter() - start, 2),
-                                                       "iterations": result.iterations, "converged": result.converged}
+                                                       "iterations": result.iterations, "converged": result.converged,
+                                                       "plausible": result.plausible}
     return row
 
 
@@ -74,7 +75,9 @@ def main(seeds, optics):
                    "mean_depth_error": round(float(np.mean([c["results"][m]["depth_error"] for c in cases])), 4)} for m in methods}
     wins = sum(all(c["results"]["physics"]["rms_um"] < c["results"][m]["rms_um"] for m in methods[:-1]) for c in cases)
     depth_wins = sum(all(c["results"]["physics"]["depth_error"] < c["results"][m]["depth_error"] for m in methods[:-1]) for c in cases)
-    write_result("physics" if optics == "default-v1" else f"physics-{optics}", {"optics": optics, "summary": summary, "physics_best_rms_cases": f"{wins}/{len(cases)}",
+    flagged = sum(not c["results"]["physics"]["plausible"] for c in cases)
+    write_result("physics" if optics == "default-v1" else f"physics-{optics}", {"optics": optics, "summary": summary,
+                                                                                "physics_flagged_implausible": f"{flagged}/{len(cases)}", "physics_best_rms_cases": f"{wins}/{len(cases)}",
                              "physics_best_depth_cases": f"{depth_wins}/{len(cases)}", "cases": cases})
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import json
 import time
 from dataclasses import dataclass
 
@@ -99,8 +100,11 @@ def _figures(folder, result):
 
 
 def paper_tables(folder, *, size_px=256, pixel_um=20.0, optics="default-v1", progress=None):
-    """Run all subjects and write Table 1, Table 2, the wrinkle-depth table and the figures
-    into ``folder``. Returns the per-subject results."""
+    """Run all subjects and write Table 1, Table 2, the wrinkle-depth table, the figures and
+    ``optics.json`` (the skin-optics profile, with its sources) into ``folder``. Returns the
+    per-subject results and the tables as Markdown."""
+    optics = optics_profile(optics)
+    (folder / "optics.json").write_text(json.dumps(optics.describe(), indent=2) + "\n", encoding="utf-8")
     results = []
     for subject in SUBJECTS:
         results.append(run_subject(subject, size_px=size_px, pixel_um=pixel_um, optics=optics))

@@ -35,13 +35,24 @@ Estimation, alternating until the height stops changing (``tolerance``):
    a_c = rho_c T_c(f), weights each band by how much of the shading it kept at that
    frequency (a band blurred to nothing there contributes nothing), instead of the paper's
    fixed 1/2, 1/4, 1/4. S_i is the unblurred direct shading, E_i up to the albedo pattern.
+   No frequency is amplified more than ``MAX_DECONVOLUTION_GAIN`` times: S_i is multiplied
+   by min(1, G / A), A = sqrt(sum_c rho_c^2 / sum_c a_c^2) (a blur shared by all bands is
+   invisible to the band ratios, so where every band lost a frequency the kernels' absolute
+   level is a guess, and an unbounded inverse turned that guess into 20x amplification).
 4. Photometric stereo of S (all bands at once), integration, and from the new height: K,
    cast shadows and the specular lobe's k, m (fitted to the bands' disagreement, see
    ``_fit_specular``). The model residual I_ci - s_i - T_c[rho_c (E_i + K B_ci)] is recorded
    per iteration. The last iteration's height is returned, unless the height changed by more
    than half its RMS in one pass (diverging): then the one before.
 
-Known limits (numbers in docs/method.md): the highlight fit assumes a white highlight; a
+A sanity check, not a validation: the result records its agreement with the mean of the
+plain band heights (relief ratio and correlation, both levelled) and is flagged not
+plausible outside ``PLAUSIBLE_RELIEF`` or below ``PLAUSIBLE_CORRELATION``.
+
+Known limits (numbers in docs/method.md): the method is validated in the simulator's
+``default-v1`` skin optics and on Mitsuba renders; in the ``literature`` profile (every band
+blurred, no sharp diffuse band) and the ``paper-calibrated`` one (strong highlights) it is
+worse than the best band. The highlight fit assumes a white highlight; a
 slightly coloured one (Fresnel dispersion) cannot be told from a stronger white one plus a
 skin-coloured part, so its scale comes out high and the deepest wrinkles on dark skin come
 out too shallow; a smooth coat (Beckmann alpha 0.2) defeats the fit. The kernel fit needs
