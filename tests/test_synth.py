@@ -11,7 +11,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.height import dct_poisson, integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.normals import angular_error_degrees, photometric_stereo
-from skintopo.synth import Effects, SurfaceSpec, Wrinkle, default_settings, make_surface, preset_spec, simulate_acquisition
+from skintopo.synth import Effects, SurfaceSpec, Wrinkle, default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import cast_shadow, interreflection_operator, solve_radiosity
 
 
@@ -120,11 +120,15 @@ def test_cast_shadow_behind_a_wall_has_the_expected_length():
     assert shadow[5, 11:20].all() and not shadow[5, :10].any() and not shadow[5, 22:].any()
 
 
-def test_same_seed_same_images():
+@pytest.mark.parametrize("optics", ["default-v1", "literature", "paper-calibrated"])
+def test_same_seed_same_images(optics):
     surface = make_surface(preset_spec("forehead-low", size_px=48, pixel_um=30.0), seed=5)
-    first, _ = simulate_acquisition(surface, default_settings(), seed=9)
-    second, _ = simulate_acquisition(surface, default_settings(), seed=9)
+    settings = default_settings(optics=optics_profile(optics))
+    first, _ = simulate_acquisition(surface, settings, seed=9)
+    second, _ = simulate_acquisition(surface, settings, seed=9)
+    other, _ = simulate_acquisition(surface, settings, seed=10)
     np.testing.assert_array_equal(first["red"][0], second["red"][0])
+    assert not np.array_equal(first["red"][0], other["red"][0])  # another capture seed, other images
 
 
 @pytest.mark.slow
