@@ -368,6 +368,15 @@ def test_bad_inputs():
     assert np.isnan(flat["Ssk"]) and np.isnan(flat["Sku"]) and np.isnan(flat["D_cube-counting"])
 
 
+def test_measure_texture_returns_the_estimators_results_on_request():
+    height = HeightMap(np.random.default_rng(5).normal(size=(64, 64)), 2.0)
+    parameters, fractal = measure_texture(height, return_fractal=True)
+    assert parameters_by_name(parameters) == parameters_by_name(measure_texture(height))
+    by_name = parameters_by_name(parameters)
+    assert [r.method for r in fractal] == [name[2:] for name in by_name if name.startswith("D_")]
+    assert all(by_name[f"D_{r.method}"] == r.dimension and r.x.size > 2 for r in fractal)
+
+
 def test_masked_points_are_left_out():
     z = np.random.default_rng(3).normal(size=(60, 60))
     holey = z.copy()

@@ -257,15 +257,16 @@ class Measurement:
 def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None) -> Measurement:
     """Texture and fractal parameters (whole field and each region) and wrinkle measures of ``height``."""
     regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
-    fractal_results = []
-    texture = {
-        name: measure_texture(region, level_order=options.texture.level_order, p=options.texture.p, q=options.texture.q,
-                              fractal_results=fractal_results if name == "field" else None)
-        for name, region in regions.items()
-    }
+    texture_options = {"level_order": options.texture.level_order, "p": options.texture.p, "q": options.texture.q}
+    texture, fractal_results = {}, ()
+    for name, region in regions.items():
+        if name == "field":  # its estimators' log-log points go to the report's plot
+            texture[name], fractal_results = measure_texture(region, **texture_options, return_fractal=True)
+        else:
+            texture[name] = measure_texture(region, **texture_options)
     segmentation = segment_wrinkles(height, **options.segmentation.as_kwargs())
     wrinkles = measure_wrinkles(height, segmentation)
-    return Measurement(height, albedo, dict(source or {}), options, texture, tuple(fractal_results), segmentation, wrinkles)
+    return Measurement(height, albedo, dict(source or {}), options, texture, fractal_results, segmentation, wrinkles)
 
 
 def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None) -> Measurement:

@@ -53,7 +53,7 @@ class Parameter:
     reference: str
 
 
-def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS, fractal_results=None):
+def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS, return_fractal=False):
     """All areal parameters and fractal dimensions of a height map, in one call.
 
     Parameters
@@ -67,13 +67,15 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
         Material ratios (%) of the volume parameters (ISO defaults 10 and 80).
     fractal_methods : sequence of str
         Estimators to run (default the four Gwyddion ones).
-    fractal_results : list, optional
-        If given, each estimator's :class:`~skintopo.texture.fractal.FractalResult` (with its
-        log-log points, for plotting) is appended to it.
+    return_fractal : bool
+        Also return each estimator's :class:`~skintopo.texture.fractal.FractalResult` (with
+        its log-log points, for plotting).
 
     Returns
     -------
-    list of Parameter
+    parameters : list of Parameter
+    fractal : tuple of FractalResult
+        Only when ``return_fractal`` is true.
 
     Notes
     -----
@@ -101,11 +103,9 @@ def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_
         references[name] = f"ISO 25178-2 4.5 (volume), p = {p:g} %, q = {q:g} %"
     parameters = [Parameter(name, float(value), _UNITS[name], references[name]) for name, value in values.items()]
     for result in estimates:
-        if fractal_results is not None:
-            fractal_results.append(result)
         reference = f"fractal dimension, {result.method} (Gwyddion definition)" if result.method in FRACTAL_METHODS else f"fractal dimension, {result.method}"
         parameters.append(Parameter(f"D_{result.method}", result.dimension, "", reference))
-    return parameters
+    return (parameters, tuple(estimates)) if return_fractal else parameters
 
 
 @functools.cache
