@@ -14,7 +14,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
-from skintopo.physics import ScatteringKernel, estimate_scattering_kernels, physics_height
+from skintopo.physics import IDENTITY_KERNEL, ScatteringKernel, estimate_scattering_kernels, physics_height
 from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
 
@@ -118,6 +118,31 @@ def test_physics_says_when_its_model_does_not_describe_the_images():
     assert not result.plausible
     assert "do not use it" in result.convergence_note()
     assert result.as_dict()["plausible"] is False
+
+
+@pytest.mark.slow
+def test_physics_with_known_kernels_where_every_band_is_blurred():
+    """The literature skin optics blurs every band (blue's narrowest Gaussian is 80 um), so the
+    band ratios cannot tell the kernels' absolute level; given the diffusion profiles (as a
+    device calibration would), physics beats every band by more than 15%."""
+    optics = optics_profile("literature")
+    surface, images, lights = _simulated("forehead-moderate", "light", seed=3, optics="literature")
+    result = physics_height({b: images[b] for b in BANDS}, lights, 20.0, kernels=optics.scattering)
+    found = evaluate_height(result.height, surface.height)["rms_height_error_um"]
+    others = _band_and_paper_errors(images, lights, surface)
+    print(f"physics with the literature kernels {found:.2f} um; bands and paper {others}")
+    assert found < 0.85 * min(others.values())
+    assert result.as_dict()["components"]["kernels_given"] and result.kernel_fit_rms is None and result.plausible
+    with pytest.raises(SkinTopoError, match="missing for \\['blue'\\]"):
+        physics_height({b: images[b] for b in BANDS}, lights, 20.0, kernels={"red": optics.scattering["red"], "green": IDENTITY_KERNEL})
+    class Absorbing:  # loses half the light at every frequency: not a diffusion profile
+        length_um = 10.0
+
+        def transfer(self, frequency):
+            return np.full(np.shape(frequency), 0.5)
+
+    with pytest.raises(SkinTopoError, match="transmit 1 at zero frequency"):
+        physics_height({b: images[b] for b in BANDS}, lights, 20.0, kernels={b: Absorbing() for b in BANDS})
 
 
 def test_physics_needs_red_green_and_blue_under_the_same_lights():

@@ -108,8 +108,11 @@ class ScatteringKernel:
         return (1 - self.weight) + self.weight * (1 + (2 * np.pi * f * self.length_um) ** 2 / (2 * self.shape)) ** (-self.shape)
 
     def as_dict(self):
-        return {"weight": self.weight, "length_um": self.length_um, "shape": self.shape,
-                "transfer_at_cycles_per_mm": {str(f): float(self.transfer(f / 1000)) for f in (0.5, 1, 2, 4, 8)}}
+        return {"weight": self.weight, "length_um": self.length_um, "shape": self.shape} | _transfer_record(self)
+
+
+def _transfer_record(kernel):
+    return {"transfer_at_cycles_per_mm": {str(f): float(kernel.transfer(f / 1000)) for f in (0.5, 1, 2, 4, 8)}}
 
 
 IDENTITY_KERNEL = ScatteringKernel(0.0, 1.0, 1.5)
@@ -119,7 +122,7 @@ IDENTITY_KERNEL = ScatteringKernel(0.0, 1.0, 1.5)
 class PhysicsResult:
     """Output of :func:`physics_height`.
 
-    ``height`` is the last iteration's (or the one before, when the last one diverged); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture);
+    ``height`` is the last iteration's (or the one before, when the last one diverged); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture) or the kernels given;
     ``specular``: fitted lobe (``roughness`` m, ``scale`` k); ``changes``: RMS height change
     per iteration relative to the height's RMS; ``residuals``: RMS model residual per
     iteration (fraction of full scale); ``converged``: the last change is below the tolerance;
@@ -135,7 +138,7 @@ class PhysicsResult:
     residuals: list
     converged: bool
     diverged: bool
-    kernel_fit_rms: float
+    kernel_fit_rms: float | None  # None when the kernels were given
     components: dict = field(default_factory=dict)
     agreement: dict = field(default_factory=dict)
 
@@ -165,7 +168,8 @@ class PhysicsResult:
         return {
             "method": "physics",
             "components": self.components,
-            "kernels": {band: kernel.as_dict() for band, kernel in self.kernels.items()},
+            "kernels": {band: kernel.as_dict() if isinstance(kernel, ScatteringKernel) else _transfer_record(kernel)
+                        for band, kernel in self.kernels.items()},
             "kernel_fit_rms": self.kernel_fit_rms,
             "specular": self.specular,
             "iterations": self.iterations,
@@ -338,7 +342,7 @@ def _check_inputs(images, lights):
     return {band: np.asarray(images[band], dtype=float) for band in REQUIRED_BANDS}, lights
 
 
-def physics_height(images, lights, spacing, *, mask=None, scattering=True, interreflection=True, highlights=True,
+def physics_height(images, lights, spacing, *, mask=None, scattering=True, kernels=None, interreflection=True, highlights=True,
                    iterations=DEFAULT_ITERATIONS, tolerance=DEFAULT_TOLERANCE, radius_um=DEFAULT_RADIUS_UM,
                    integrator=DEFAULT_INTEGRATOR) -> PhysicsResult:
     """Height that inverts scattering, interreflection and highlights (module notes).
@@ -357,6 +361,13 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
         Pixels of skin; the others are filled for the Fourier steps and left out of the height.
     scattering, interreflection, highlights : bool
         Which effects to invert (all by default; switching one off is the ablation).
+    kernels : dict band -> kernel, optional
+        Scattering kernels known beforehand (a measured or published diffusion profile)
+        instead of estimated from the capture: objects with ``transfer(frequency)`` (cycles
+        per micrometre) and ``length_um`` (their widest length), e.g. a
+        :class:`ScatteringKernel` or a simulator profile's
+        :class:`~skintopo.synth.optics.ScatteringProfile`. A blur shared by all bands cannot
+        be estimated from the bands' ratios; known kernels remove that ambiguity.
     iterations : int
         At most this many passes of steps 2-4; ``tolerance`` stops earlier.
 
@@ -376,8 +387,12 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
         albedo_level[band] = float(np.nanmedian(stereo.albedo))
         fitted = np.einsum("rck,mk->mrc", np.nan_to_num(scaled_normals[band]), lights)
         images[band] = np.where(np.isfinite(images[band]) & mask, images[band], fitted)
-    kernels, kernel_fit_rms = (estimate_scattering_kernels(scaled_normals, spacing) if scattering
-                               else ({band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0))
+    if not scattering:
+        kernels, kernel_fit_rms = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0
+    elif kernels is not None:
+        kernels, kernel_fit_rms = _checked_kernels(kernels), None
+    else:
+        kernels, kernel_fit_rms = estimate_scattering_kernels(scaled_normals, spacing)
     pad = int(min(max(shape) // 2, np.ceil(4 * max(k.length_um for k in kernels.values()) / min(spacing)) + 4))
     fourier = _Filter(shape, spacing, pad)
     transfer = {band: kernels[band].transfer(fourier.frequency) for band in REQUIRED_BANDS}
@@ -424,11 +439,26 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, inter
     height, albedo_pattern, specular = best
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
-    components = {"scattering": scattering, "interreflection": interreflection, "highlights": highlights,
+    components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
+                  "interreflection": interreflection, "highlights": highlights,
                   "interreflection_radius_um": radius_um if interreflection else None,
                   "interreflection_grid_factor": gather.factor if gather is not None else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
                          converged, diverged, kernel_fit_rms, components, _agreement(height, plain))
+
+
+def _checked_kernels(kernels):
+    missing = [band for band in REQUIRED_BANDS if band not in kernels]
+    if missing:
+        raise SkinTopoError(f"scattering kernels are missing for {missing}")
+    for band in REQUIRED_BANDS:
+        kernel = kernels[band]
+        if not (callable(getattr(kernel, "transfer", None)) and float(getattr(kernel, "length_um", -1)) >= 0):
+            raise SkinTopoError(f"the {band} scattering kernel needs transfer(frequency) and length_um")
+        if not np.isclose(float(kernel.transfer(0.0)), 1.0, atol=1e-3):
+            raise SkinTopoError(f"the {band} scattering kernel must transmit 1 at zero frequency (it conserves light), "
+                                f"got {float(kernel.transfer(0.0)):.4g}")
+    return {band: kernels[band] for band in REQUIRED_BANDS}
 
 
 def _agreement(height, plain):

@@ -88,6 +88,11 @@ class ScatteringProfile:
         f2 = np.asarray(frequency_per_um, dtype=float) ** 2
         return sum(w * np.exp(-2 * np.pi**2 * s**2 * f2) for w, s in zip(self.weights, self.sigmas_um))
 
+    @property
+    def length_um(self):
+        """The widest component's width (um)."""
+        return max(self.sigmas_um)
+
     def scaled(self, factor):
         """The same profile with every width times ``factor``."""
         return replace(self, sigmas_um=tuple(s * factor for s in self.sigmas_um))
