@@ -43,7 +43,7 @@ from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.paper import SUBJECTS, run_subject
 from skintopo.synth import make_surface, preset_spec, simulate_acquisition
-from skintopo.synth.optics import LITERATURE, PROFILES
+from skintopo.optics import LITERATURE, PROFILES
 from skintopo.synth.render import RenderSettings, default_lights
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals

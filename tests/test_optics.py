@@ -9,7 +9,7 @@ import scipy.ndimage
 
 from skintopo.cli import main
 from skintopo.errors import SkinTopoError
-from skintopo.synth.optics import (
+from skintopo.optics import (
     JENSEN_2001_SKIN,
     LITERATURE,
     PROFILES,

@@ -202,6 +202,16 @@ def test_correct_physics_writes_the_height_and_physics_json(tmp_path):
     assert "measured height: physics" in measured.stdout
     kept = json.loads((tmp_path / "measured" / "parameters.json").read_text())["summary"]["source"]["physics"]
     assert kept["kernels"] == record["kernels"] and kept["converged"] == record["converged"]
+    assert record["components"]["kernels_given"] is False and isinstance(record["plausible"], bool)
+    given = subprocess.run([*run, "measure", str(acquisition), "-o", str(tmp_path / "given"), "--method", "physics",
+                            "--physics-kernels", "default-v1"], capture_output=True, text=True)
+    assert given.returncode == 0, given.stderr
+    summary = json.loads((tmp_path / "given" / "parameters.json").read_text())["summary"]
+    assert summary["source"]["physics"]["components"]["kernels_given"] is True
+    assert summary["source"]["physics"]["kernels"]["red"]["transfer_at_cycles_per_mm"]["8"] == pytest.approx(0.5, abs=1e-6)  # 50% spread
+    unknown = subprocess.run([*run, "correct", str(acquisition), "-o", str(tmp_path / "unknown"), "--method", "physics",
+                              "--physics-kernels", "marble"], capture_output=True, text=True)
+    assert unknown.returncode != 0 and "unknown skin-optics profile 'marble'" in unknown.stderr and "Traceback" not in unknown.stderr
     only_two = tmp_path / "two"
     subprocess.run([*run, "synth", "-o", str(only_two), "--size", "32", "-q"], check=True)
     manifest = json.loads((only_two / "acquisition.json").read_text())

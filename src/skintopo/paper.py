@@ -45,7 +45,7 @@ COLUMNS = ("red", "green", "blue", "white", "algorithm", "algorithm-feathered")
 def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0, optics="default-v1", solver="least-squares"):
     """Simulate, reconstruct, correct and evaluate one subject. Returns a dict.
 
-    ``optics`` is a skin-optics profile or its name (:mod:`skintopo.synth.optics`); ``solver``
+    ``optics`` is a skin-optics profile or its name (:mod:`skintopo.optics`); ``solver``
     the photometric-stereo solver (the paper's is least squares).
     """
     started = time.perf_counter()

@@ -366,7 +366,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         instead of estimated from the capture: objects with ``transfer(frequency)`` (cycles
         per micrometre) and ``length_um`` (their widest length), e.g. a
         :class:`ScatteringKernel` or a simulator profile's
-        :class:`~skintopo.synth.optics.ScatteringProfile`. A blur shared by all bands cannot
+        :class:`~skintopo.optics.ScatteringProfile`. A blur shared by all bands cannot
         be estimated from the bands' ratios; known kernels remove that ambiguity.
     iterations : int
         At most this many passes of steps 2-4; ``tolerance`` stops earlier.

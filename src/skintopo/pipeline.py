@@ -28,6 +28,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
 from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
+from skintopo.optics import optics_profile
 from skintopo.physics import PhysicsResult, physics_height
 from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, rgb_share_lights, specular_separation
 from skintopo.segmentation import (
@@ -73,14 +74,19 @@ class HeightOptions:
     present, else the white band, else the only band), ``"paper"`` or ``"feathered"`` (the
     spectral correction, :mod:`skintopo.correction`), ``"physics"`` (the physically based
     height, :mod:`skintopo.physics`), or one band: ``red``, ``green``,
-    ``blue``, ``white``, ``specular-free``.
+    ``blue``, ``white``, ``specular-free``. ``physics_kernels``: for ``"physics"``, the name
+    of a skin-optics profile (:mod:`skintopo.optics`) whose diffusion profiles are taken as
+    known scattering kernels; None (default) estimates them from the capture.
     """
 
     method: str = AUTO_HEIGHT
+    physics_kernels: str | None = None
 
     def __post_init__(self):
         if self.method not in HEIGHT_METHODS:
             raise SkinTopoError(f"unknown height method {self.method!r}; choose from {list(HEIGHT_METHODS)}")
+        if self.physics_kernels is not None:
+            optics_profile(self.physics_kernels)  # a clear error for an unknown profile
 
 
 @dataclass(frozen=True)
@@ -220,8 +226,10 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:
+        kernels = options.height.physics_kernels and optics_profile(options.height.physics_kernels).scattering
         physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
-                                 acquisition.pixel_um, mask=acquisition.mask, integrator=options.reconstruction.integrator)
+                                 acquisition.pixel_um, mask=acquisition.mask, kernels=kernels or None,
+                                 integrator=options.reconstruction.integrator)
         return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
                                  None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)

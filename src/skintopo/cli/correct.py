@@ -23,7 +23,7 @@ def run(args):
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
     acquisition = shared.load(args, None)
-    options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method),
+    options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method, args.physics_kernels),
                              segmentation=shared.segmentation_options(args))
     made = acquisition_height(acquisition, options, shared.band_progress(args))
     segmentation = made.correction.segmentation if made.correction else segment_wrinkles(made.height, **options.segmentation.as_kwargs())
@@ -58,6 +58,7 @@ def add_parser(commands):
     correct.add_argument("--method", choices=(*CORRECTION_METHODS, PHYSICS), default=DEFAULT_CORRECTION_METHOD,
                          help=f"paper or feathered (the paper's spectral correction), or physics (inverts scattering, "
                               f"interreflection and highlights; writes physics.json); default {DEFAULT_CORRECTION_METHOD}")
+    shared.add_physics_kernels_option(correct)
     shared.add_segmentation_options(correct)
     shared.add_output_switches(correct)
     correct.set_defaults(handler=run)

@@ -90,7 +90,7 @@ def reconstruction_options(args):
 def measure_options(args, method=None):
     return MeasureOptions(
         reconstruction=reconstruction_options(args),
-        height=HeightOptions(method or args.method),
+        height=HeightOptions(method or args.method, args.physics_kernels),
         segmentation=segmentation_options(args),
         texture=TextureOptions(level_order=args.level, p=args.p, q=args.q),
         regions=tuple(args.region),
@@ -148,6 +148,12 @@ def add_segmentation_options(parser):
                         help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
 
 
+def add_physics_kernels_option(parser):
+    parser.add_argument("--physics-kernels", metavar="PROFILE", default=None,
+                        help="physics only: take the scattering kernels from a skin-optics profile's diffusion profiles "
+                        "(literature, paper-calibrated, default-v1) instead of estimating them from the capture")
+
+
 def add_measure_options(parser):
     """Every option of ``MeasureOptions``: reconstruction, height method, texture, regions, segmentation."""
     add_reconstruction_options(parser)
@@ -155,6 +161,7 @@ def add_measure_options(parser):
                         help="height measured from an acquisition: auto (default: the paper's correction when red, green and blue "
                         "are present, else white, else the only band), paper, feathered, physics (inverts scattering, interreflection "
                         "and highlights; at least 5 mm of field recommended), or one band")
+    add_physics_kernels_option(parser)
     parser.add_argument("--level", type=non_negative_int, default=TextureOptions().level_order,
                         help="order of the least-squares form removed first (default 1: plane)")
     parser.add_argument("--p", type=float, default=DEFAULT_P, help=f"material ratio p of Vmp/Vmc/Vvc (default {DEFAULT_P:g} %%)")

@@ -33,7 +33,7 @@ import numpy as np
 from skintopo.acquisition import write_acquisition
 from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
-from skintopo.synth.optics import PROFILES, SkinOptics, optics_profile
+from skintopo.optics import PROFILES, SkinOptics, optics_profile
 from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, make_surface
 

@@ -17,7 +17,7 @@ Diffuse, with cast shadows and interreflection (radiosity)
 Translucency
     T[I] = sum_k w_k G_sigma_k * I: the band's diffusion profile, a sum of normalised Gaussians
     (a width of 0 is light re-emerging where it entered), widest in red (deepest penetration).
-    The weights and widths come from the skin-optics profile (:mod:`skintopo.synth.optics`).
+    The weights and widths come from the skin-optics profile (:mod:`skintopo.optics`).
 
 Specular (Torrance-Sparrow with Beckmann facets and Fresnel)
     I_s = k_s pi F(v.h; eta) D(n.h) G / (4 n.v) V_s,
@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.ndimage
 
-from skintopo.synth.optics import DEFAULT_V1, SkinOptics
+from skintopo.optics import DEFAULT_V1, SkinOptics
 from skintopo.transport import cast_shadow, interreflection_operator
 
 BAND_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0}
@@ -148,7 +148,7 @@ class RenderSettings:
     effects: Effects = field(default_factory=Effects)
     interreflection_radius_um: float | None = None  # default: the widest wrinkle, at least 0.4 mm
     n_azimuth: int = 16
-    optics: SkinOptics = DEFAULT_V1  # albedo, diffusion profiles, surface reflection (synth.optics)
+    optics: SkinOptics = DEFAULT_V1  # albedo, diffusion profiles, surface reflection (skintopo.optics)
     specular_strength: float = 1.0  # multiplies the profile's specular scale
     specular_roughness: float | None = None  # Beckmann m; None: the profile's (skin 0.3-0.45, field notes)
     noise: float = 1.0

@@ -1,4 +1,8 @@
-"""Skin-optics profiles of the simulator: albedo, subsurface scattering and surface reflection.
+"""Skin-optics profiles: albedo, subsurface scattering and surface reflection, with sources.
+
+The simulator (:mod:`skintopo.synth`) renders a profile; the physically based height
+(:mod:`skintopo.physics`, ``kernels=``; ``--physics-kernels`` on the command line) can take a
+profile's diffusion profiles as known scattering kernels instead of estimating them.
 
 Which effect dominates skin's photometric stereo, light spread under the surface (it blurs
 the diffuse normals, most in red) or light reflected at the surface (it steepens slopes, most
