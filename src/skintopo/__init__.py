@@ -10,8 +10,16 @@ Height is positive toward the camera.
 """
 
 from skintopo.errors import AcquisitionError, SkinTopoError
-from skintopo.heightmap import HeightMap
 
 __version__ = "0.1.0"
 
 __all__ = ["AcquisitionError", "HeightMap", "SkinTopoError", "__version__"]
+
+
+def __getattr__(name):
+    # HeightMap on first use (PEP 562): ``import skintopo`` and ``skintopo --help`` need no NumPy
+    if name == "HeightMap":
+        from skintopo.heightmap import HeightMap
+
+        return HeightMap
+    raise AttributeError(f"module 'skintopo' has no attribute {name!r}")

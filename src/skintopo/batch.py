@@ -39,13 +39,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from skintopo.defaults import DEFAULT_SCHEDULER_TIMEOUT_S
 from skintopo import __version__
 from skintopo.errors import SkinTopoError
 from skintopo.pipeline import MeasureOptions
 
 STAMP = "batch.json"
 LOCK = ".lock"
-DEFAULT_SCHEDULER_TIMEOUT_S = 10.0
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 REPEAT_SUFFIX = "~repeat"
 

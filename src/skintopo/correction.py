@@ -33,13 +33,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.ndimage
 
+from skintopo.defaults import CORRECTION_METHODS, DEFAULT_CORRECTION_METHOD
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_slopes, normals_to_gradients
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.segmentation import WrinkleSegmentation, segment_wrinkles
 
-METHODS = ("paper", "feathered")
-DEFAULT_METHOD = "paper"
+METHODS = CORRECTION_METHODS
+DEFAULT_METHOD = DEFAULT_CORRECTION_METHOD
 DEFAULT_FEATHER_UM = 150.0
 REQUIRED_BANDS = ("red", "green", "blue")
 

@@ -31,6 +31,7 @@ import scipy.fft
 import scipy.ndimage
 import scipy.sparse
 
+from skintopo.defaults import AUTO_INTEGRATOR, DEFAULT_INTEGRATOR, INTEGRATOR_NAMES
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap, pixel_spacing
 
@@ -301,12 +302,8 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     return z
 
 
-INTEGRATORS = {
-    "dct-poisson": dct_poisson,
-    "frankot-chellappa": frankot_chellappa,
-    "least-squares": masked_least_squares,
-}
-AUTO = "auto"
+INTEGRATORS = dict(zip(INTEGRATOR_NAMES, (dct_poisson, frankot_chellappa, masked_least_squares)))
+AUTO = AUTO_INTEGRATOR
 AUTO_HOLE_FRACTION = 0.01  # auto: up to 1% of invalid pixels, in holes of at most
 AUTO_HOLE_PIXELS = 9  # 9 pixels each, are bridged and integrated by DCT
 
@@ -314,7 +311,6 @@ AUTO_HOLE_PIXELS = 9  # 9 pixels each, are bridged and integrated by DCT
 def _largest_hole(valid):
     labels, count = scipy.ndimage.label(~valid)
     return int(np.bincount(labels.ravel())[1:].max()) if count else 0
-DEFAULT_INTEGRATOR = AUTO
 
 
 def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):

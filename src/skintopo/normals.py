@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skintopo.defaults import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, SOLVERS
 from skintopo.lights import check_light_directions
 from skintopo._linalg import solve_symmetric_3x3
 from skintopo.errors import SkinTopoError
 
-DEFAULT_SHADOW_FRACTION = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,8 +203,6 @@ def _reject_outliers(intensity, usable, lights, g, count, *, threshold, max_iter
     return g, count
 
 
-SOLVERS = ("least-squares", "robust")
-DEFAULT_SOLVER = "least-squares"
 DEFAULT_ROBUST_THRESHOLD = 0.02
 HIGHLIGHT_EXCESS = 0.3  # few lights: a tied observation is dropped as a highlight only this far (x albedo) above the others' fit
 

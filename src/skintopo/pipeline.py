@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skintopo.defaults import AUTO_HEIGHT, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
 from skintopo.acquisition import BANDS, DEFAULT_SATURATION, load_acquisition
 from skintopo.correction import METHODS as CORRECTION_METHODS
 from skintopo.correction import REQUIRED_BANDS, CorrectionResult, spectral_correction
@@ -42,9 +43,6 @@ from skintopo.segmentation import (
 from skintopo.texture import DEFAULT_P, DEFAULT_Q, finite_or_none, measure_texture
 from skintopo.wrinkles import WrinkleMeasures, measure_wrinkles
 
-AUTO_HEIGHT = "auto"
-PHYSICS = "physics"
-HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, PHYSICS, *BANDS, SPECULAR_FREE)
 
 
 @dataclass(frozen=True)
@@ -107,7 +105,7 @@ class TextureOptions:
     """Surface texture settings (:func:`skintopo.texture.measure_texture`): the order of the
     least-squares form removed first and the material ratios p, q (%) of the volume parameters."""
 
-    level_order: int | None = 1
+    level_order: int | None = DEFAULT_LEVEL_ORDER
     p: float = DEFAULT_P
     q: float = DEFAULT_Q
 

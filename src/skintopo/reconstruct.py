@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skintopo.defaults import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES, SPECULAR_FREE
 from skintopo.acquisition import Acquisition
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
 from skintopo.heightmap import HeightMap
@@ -36,9 +37,6 @@ class BandReconstruction:
     seconds_integration: float
 
 
-SPECULAR_FREE = "specular-free"
-HIGHLIGHT_MODES = ("cross-band", "none")
-DEFAULT_HIGHLIGHTS = "none"  # cross-band helps opaque shiny surfaces and blue, hurts dark skin green (docs/method.md)
 
 
 def rgb_share_lights(acquisition: Acquisition):

@@ -35,14 +35,11 @@ from skimage.measure import label, regionprops
 from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
 
+from skintopo.defaults import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
 from skintopo.errors import SkinTopoError
 from skintopo.filters import areal_gaussian_filter, block_mean, gaussian_bandpass, level
 from skintopo.heightmap import HeightMap
 
-DEFAULT_CUTOFF_UM = 8000.0
-DEFAULT_SHORT_CUTOFF_UM = 600.0
-DEFAULT_MIN_DEPTH_UM = 25.0
-DEFAULT_MIN_LENGTH_UM = 1500.0
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
 REFERENCE_CUTOFF_UM = 2500.0  # local skin level for confirming candidates
 REFERENCE_MARGIN_UM = 150.0

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skintopo.defaults import BANDS, DEFAULT_SATURATION
 from skintopo.errors import AcquisitionError
 
 
@@ -20,7 +21,6 @@ FORMAT_NAME = "skintopo-acquisition"
 FORMAT_VERSION = 1
 
 
-BANDS = ("red", "green", "blue", "white")
 
 
 DEFAULT_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0, "white": None}
@@ -32,7 +32,6 @@ CHANNEL_INDEX = {"red": 0, "green": 1, "blue": 2}
 CHANNELS = ("red", "green", "blue", "mean")
 
 
-DEFAULT_SATURATION = 0.995
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-
-from skintopo.batch import DEFAULT_SCHEDULER_TIMEOUT_S
 from skintopo.cli import options as shared
+from skintopo.defaults import DEFAULT_SCHEDULER_TIMEOUT_S
 
 
 def run(args):

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_file, write_json_atomic
 
 
 def run(args):
     from skintopo.calibration import calibrate_lights
+    from skintopo.outputs import check_output_file, write_json_atomic
 
     check_output_file(args.out, overwrite=args.overwrite, inputs=[*args.images, *([args.mask] if args.mask else [])])
     output = Path(args.out)

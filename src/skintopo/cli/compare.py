@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.pipeline import compare_results
     from skintopo.results import write_comparison
 

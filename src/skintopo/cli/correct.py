@@ -5,19 +5,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.correction import DEFAULT_METHOD as DEFAULT_CORRECTION_METHOD
-from skintopo.correction import METHODS as CORRECTION_METHODS
-from skintopo.outputs import check_output_folder, staged_output_folder, write_json
-from skintopo.pipeline import PHYSICS, HeightOptions, MeasureOptions, acquisition_summary
-from skintopo.reconstruct import band_statistics
-from skintopo.results import run_header
+from skintopo.defaults import CORRECTION_METHODS, DEFAULT_CORRECTION_METHOD, PHYSICS
 
 
 def run(args):
-    from skintopo.outputs import write_label_image
-    from skintopo.pipeline import acquisition_height
+    from skintopo.outputs import check_output_folder, staged_output_folder, write_json, write_label_image
+    from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_height, acquisition_summary
+    from skintopo.reconstruct import band_statistics
+    from skintopo.results import run_header
     from skintopo.segmentation import segment_wrinkles
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])

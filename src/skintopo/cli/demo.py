@@ -5,20 +5,18 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-
-from skintopo.acquisition import load_acquisition
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder, write_json
-from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_summary
-from skintopo.results import run_header
 
 
 def run(args):
+    import numpy as np
+
+    from skintopo.acquisition import load_acquisition
     from skintopo.evaluation import evaluate_height
-    from skintopo.pipeline import acquisition_height, measure_height
+    from skintopo.outputs import check_output_folder, staged_output_folder, write_json
+    from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_height, acquisition_summary, measure_height
     from skintopo.report import cross_section_pngs
-    from skintopo.results import write_measurement
+    from skintopo.results import run_header, write_measurement
     from skintopo.segmentation import segmentation_quality
     from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 

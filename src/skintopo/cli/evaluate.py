@@ -4,15 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
 from skintopo.errors import SkinTopoError
-from skintopo.outputs import check_output_file, write_json_atomic
 
 
 def run(args):
     from skintopo.evaluation import evaluate_height
     from skintopo.heightmap import HeightMap
+    from skintopo.outputs import check_output_file, write_json_atomic
 
     inputs = [args.result, args.reference] + ([args.wrinkles] if args.wrinkles else [])
     check_output_file(args.out, overwrite=args.overwrite, inputs=inputs)

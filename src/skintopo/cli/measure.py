@@ -5,15 +5,13 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder
-from skintopo.results import load_albedo_beside, load_height_input
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.pipeline import measure_acquisition, measure_height
-    from skintopo.results import write_measurement
+    from skintopo.results import load_albedo_beside, load_height_input, write_measurement
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
     started = time.perf_counter()

@@ -3,21 +3,33 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
-import numpy as np
+from skintopo.defaults import (
+    AUTO_HEIGHT,
+    AUTO_INTEGRATOR,
+    DEFAULT_CUTOFF_UM,
+    DEFAULT_HIGHLIGHTS,
+    DEFAULT_INTEGRATOR,
+    DEFAULT_LEVEL_ORDER,
+    DEFAULT_MIN_DEPTH_UM,
+    DEFAULT_MIN_LENGTH_UM,
+    DEFAULT_P,
+    DEFAULT_Q,
+    DEFAULT_SATURATION,
+    DEFAULT_SHADOW_FRACTION,
+    DEFAULT_SHORT_CUTOFF_UM,
+    DEFAULT_SOLVER,
+    HEIGHT_METHODS,
+    HIGHLIGHT_MODES,
+    INTEGRATOR_NAMES,
+    SOLVERS,
+)
 
-from skintopo.acquisition import load_acquisition
-from skintopo.pipeline import HeightOptions, MeasureOptions
-from skintopo.acquisition import DEFAULT_SATURATION
-from skintopo.height import AUTO, DEFAULT_INTEGRATOR, INTEGRATORS
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, SOLVERS
-from skintopo.pipeline import HEIGHT_METHODS, ReconstructionOptions, SegmentationOptions, TextureOptions
-from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES
-from skintopo.segmentation import DEFAULT_CUTOFF_UM, DEFAULT_MIN_DEPTH_UM, DEFAULT_MIN_LENGTH_UM, DEFAULT_SHORT_CUTOFF_UM
-from skintopo.texture import DEFAULT_P, DEFAULT_Q
-
+# The library (NumPy, SciPy) is imported inside the functions that use it, so that building
+# the parser (``skintopo --help``) stays fast.
 
 
 def number_type(convert, accept, requirement):
@@ -28,7 +40,7 @@ def number_type(convert, accept, requirement):
             value = convert(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (np.isfinite(value) and accept(value)):
+        if not (math.isfinite(value) and accept(value)):
             raise argparse.ArgumentTypeError(f"must be {requirement}, got {text}")
         return value
 
@@ -78,16 +90,20 @@ def add_reconstruction_options(parser):
     parser.add_argument("--highlights", choices=HIGHLIGHT_MODES, default=DEFAULT_HIGHLIGHTS,
                         help="none (default): fit every observation the shadow and saturation rules keep; cross-band: leave out the "
                         "highlights found from red, green and blue together (helps opaque shiny surfaces and blue; see the docs)")
-    parser.add_argument("--integrator", choices=[AUTO, *sorted(INTEGRATORS)], default=DEFAULT_INTEGRATOR,
+    parser.add_argument("--integrator", choices=[AUTO_INTEGRATOR, *sorted(INTEGRATOR_NAMES)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
 
 
 def reconstruction_options(args):
+    from skintopo.pipeline import ReconstructionOptions
+
     return ReconstructionOptions(pixel_um=args.pixel_um, saturation=args.saturation, shadow_fraction=args.shadow_fraction,
                                  solver=args.solver, integrator=args.integrator, highlights=args.highlights)
 
 
 def measure_options(args, method=None):
+    from skintopo.pipeline import HeightOptions, MeasureOptions, TextureOptions
+
     return MeasureOptions(
         reconstruction=reconstruction_options(args),
         height=HeightOptions(method or args.method, args.physics_kernels),
@@ -98,6 +114,8 @@ def measure_options(args, method=None):
 
 
 def load(args, bands):
+    from skintopo.acquisition import load_acquisition
+
     acquisition = load_acquisition(args.acquisition, pixel_um=args.pixel_um, bands=bands, saturation=args.saturation)
     if acquisition.pixel_um_assumed:
         say(args, f"note: {args.acquisition} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
@@ -109,6 +127,8 @@ def band_progress(args):
 
 
 def write_band_outputs(folder, result):
+    import numpy as np
+
     folder.mkdir()
     np.save(folder / "normals.npy", result.stereo.normals.astype(np.float32))
     np.save(folder / "albedo.npy", result.stereo.albedo.astype(np.float32))
@@ -116,6 +136,8 @@ def write_band_outputs(folder, result):
 
 
 def segmentation_options(args):
+    from skintopo.pipeline import SegmentationOptions
+
     return SegmentationOptions(cutoff_um=args.cutoff_um, short_cutoff_um=args.short_cutoff_um, min_depth_um=args.min_depth_um,
                                min_length_um=args.min_length_um)
 
@@ -157,12 +179,12 @@ def add_physics_kernels_option(parser):
 def add_measure_options(parser):
     """Every option of ``MeasureOptions``: reconstruction, height method, texture, regions, segmentation."""
     add_reconstruction_options(parser)
-    parser.add_argument("--method", choices=HEIGHT_METHODS, default=HeightOptions().method,
+    parser.add_argument("--method", choices=HEIGHT_METHODS, default=AUTO_HEIGHT,
                         help="height measured from an acquisition: auto (default: the paper's correction when red, green and blue "
                         "are present, else white, else the only band), paper, feathered, physics (inverts scattering, interreflection "
                         "and highlights; at least 5 mm of field recommended), or one band")
     add_physics_kernels_option(parser)
-    parser.add_argument("--level", type=non_negative_int, default=TextureOptions().level_order,
+    parser.add_argument("--level", type=non_negative_int, default=DEFAULT_LEVEL_ORDER,
                         help="order of the least-squares form removed first (default 1: plane)")
     parser.add_argument("--p", type=float, default=DEFAULT_P, help=f"material ratio p of Vmp/Vmc/Vvc (default {DEFAULT_P:g} %%)")
     parser.add_argument("--q", type=float, default=DEFAULT_Q, help=f"material ratio q of Vmc/Vvc/Vvv (default {DEFAULT_Q:g} %%)")

@@ -5,12 +5,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.paper import paper_tables
     from skintopo.synth import optics_profile
 

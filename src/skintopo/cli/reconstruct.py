@@ -6,16 +6,16 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-
-from skintopo.acquisition import BANDS
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder, write_json
-from skintopo.pipeline import acquisition_summary, reconstruct_bands
-from skintopo.reconstruct import SPECULAR_FREE, band_statistics
-from skintopo.results import run_header
+from skintopo.defaults import BANDS, SPECULAR_FREE
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder, staged_output_folder, write_json
+    from skintopo.pipeline import acquisition_summary, reconstruct_bands
+    from skintopo.reconstruct import band_statistics
+    from skintopo.results import run_header
+
     derived = args.band == SPECULAR_FREE
     bands = None if args.band == "all" else (["red", "green", "blue"] if derived else [args.band])
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])

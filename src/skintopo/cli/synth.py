@@ -9,10 +9,10 @@ from pathlib import Path
 
 from skintopo.cli import options as shared
 from skintopo.errors import SkinTopoError
-from skintopo.outputs import check_output_folder
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder
     from skintopo.synth import (PRESETS, Effects, default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition,
                                 write_synthetic_acquisition)
 

@@ -5,15 +5,13 @@ from __future__ import annotations
 import base64
 from pathlib import Path
 
-
 from skintopo.cli import options as shared
-from skintopo.outputs import check_output_folder, staged_output_folder
-from skintopo.results import load_height_input
 
 
 def run(args):
+    from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.report import wrinkle_overlay_png
-    from skintopo.results import write_wrinkle_files
+    from skintopo.results import load_height_input, write_wrinkle_files
     from skintopo.segmentation import segment_wrinkles
     from skintopo.wrinkles import measure_wrinkles
 

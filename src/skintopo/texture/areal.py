@@ -35,12 +35,11 @@ import numpy as np
 import scipy.fft
 import scipy.ndimage
 
+from skintopo.defaults import DEFAULT_P, DEFAULT_Q
 from skintopo.errors import SkinTopoError
 from skintopo.filters import block_mean
 from skintopo.heightmap import HeightMap
 
-DEFAULT_P = 10.0  # % (ISO 25178-2 default for Vmp, Vmc, Vvc)
-DEFAULT_Q = 80.0  # %
 EQUIVALENT_LINE_WIDTH = 40.0  # % of the material ratio
 FLAT_SQ_UM = 1e-9  # below this Sq the map is flat: Ssk and Sku are undefined
 

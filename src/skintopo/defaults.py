@@ -1,0 +1,39 @@
+"""The library's defaults and choices as plain values, in one place.
+
+The stage modules take their defaults from here and the command line builds its options
+from here, so ``skintopo --help`` needs neither NumPy nor SciPy (the command modules import
+the library only when a command runs). Meanings and references are in the modules named.
+"""
+
+BANDS = ("red", "green", "blue", "white")  # acquisition: the LED colours (white = all three)
+DEFAULT_SATURATION = 0.995  # acquisition: fraction of full scale at or above which a pixel is saturated
+
+SOLVERS = ("least-squares", "robust")  # normals
+DEFAULT_SOLVER = "least-squares"
+DEFAULT_SHADOW_FRACTION = 0.05  # normals: shadowed below 5% of a first fit's albedo
+
+INTEGRATOR_NAMES = ("dct-poisson", "frankot-chellappa", "least-squares")  # height
+AUTO_INTEGRATOR = "auto"
+DEFAULT_INTEGRATOR = AUTO_INTEGRATOR
+
+SPECULAR_FREE = "specular-free"  # reconstruct: the SUV specular-free band
+HIGHLIGHT_MODES = ("cross-band", "none")
+DEFAULT_HIGHLIGHTS = "none"  # cross-band helps opaque shiny surfaces and blue, hurts dark skin green (docs/method.md)
+
+CORRECTION_METHODS = ("paper", "feathered")  # correction
+DEFAULT_CORRECTION_METHOD = "paper"
+
+AUTO_HEIGHT = "auto"  # pipeline: which height is measured
+PHYSICS = "physics"
+HEIGHT_METHODS = (AUTO_HEIGHT, *CORRECTION_METHODS, PHYSICS, *BANDS, SPECULAR_FREE)
+
+DEFAULT_CUTOFF_UM = 8000.0  # segmentation: lambda_c of the band-pass
+DEFAULT_SHORT_CUTOFF_UM = 600.0  # segmentation: lambda_s of the band-pass
+DEFAULT_MIN_DEPTH_UM = 25.0
+DEFAULT_MIN_LENGTH_UM = 1500.0
+
+DEFAULT_LEVEL_ORDER = 1  # texture: least-squares plane removed first
+DEFAULT_P = 10.0  # texture: % (ISO 25178-2 default for Vmp, Vmc, Vvc)
+DEFAULT_Q = 80.0  # %
+
+DEFAULT_SCHEDULER_TIMEOUT_S = 10.0  # batch: seconds to wait for a Dask scheduler
