@@ -11,7 +11,9 @@ import pytest
 
 from skintopo.cli import main
 from skintopo.heightmap import HeightMap
+from skintopo.pipeline import crop_region
 from skintopo.report import build_report
+from skintopo.texture import measure_texture
 from skintopo.synth import make_surface, preset_spec
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -33,16 +35,35 @@ def test_report_is_self_contained_and_escapes_user_text():
     np.testing.assert_allclose(columns.T[40:50, 40:50], z[40:50, 40:50], rtol=1e-6)  # float32 of the heights
 
 
+def test_report_shows_each_region_beside_the_field():
+    """A map whose left half is a plane and right half rough: the region of the left half must
+    show Sa = 0 (a plane after levelling), the field a rough surface's Sa."""
+    z = np.random.default_rng(2).normal(scale=5.0, size=(64, 64))
+    z[:, :32] = 0.2 * np.arange(64)[:, None]  # a tilted plane
+    height = HeightMap(z, 10.0)
+    box = (0.0, 0.0, 320.0, 640.0)  # x0, y0, x1, y1 in um: the left half
+    region = measure_texture(crop_region(height, box, "left"))
+    page = build_report(title="regions", height=height, parameters=measure_texture(height), regions={"left": (box, region)})
+    rows = dict(re.findall(r"<tr><td>(Sa)</td><td>um</td>(.*?)</tr>", page))
+    field, left = (float(v) for v in re.findall(r"<td>([^<]*)</td>", rows["Sa"]))
+    assert left < 1e-9 and field > 1.0
+    assert "left = 0, 0, 320, 640" in page
+
+
 @pytest.mark.slow
 def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
     acquisition = tmp_path / "acq"
     assert main(["synth", "-o", str(acquisition), "--preset", "forehead-moderate", "--size", "160", "-q"]) == 0
     out = tmp_path / "out"
-    assert main(["measure", str(acquisition), "-o", str(out), "-q"]) == 0
+    assert main(["measure", str(acquisition), "-o", str(out), "-q", "--region", "centre=800,800,2400,2400"]) == 0
     for name in ("parameters.json", "parameters.csv", "wrinkles.json", "wrinkles.csv", "height.x3p", "summary.json", "report.html"):
         assert (out / name).exists(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["source"]["height"] == "spectral correction (paper)"
+    centre_sa = next(p["value"] for p in json.loads((out / "parameters.json").read_text())["parameters"]
+                     if p["region"] == "centre" and p["name"] == "Sa")
+    page = (out / "report.html").read_text()
+    assert "<h2>Regions</h2>" in page and "centre = 800, 800, 2400, 2400" in page and f"{centre_sa:.5g}" in page
     if CHROMIUM is None:
         pytest.skip("no chromium on this machine (Debian package 'chromium'): report not rendered")
     screenshot = tmp_path / "shot.png"

@@ -61,6 +61,9 @@ def shaded_height_png(height, title="height"):
     rows, columns = height.shape
     figure, axes = plt.subplots(figsize=(6, 6 * rows / columns))
     axes.imshow(shade, extent=(0, columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000, 0))
+    # the colour is the height (copper map over the finite range), the shading the slope
+    levels = plt.cm.ScalarMappable(plt.Normalize(*(np.nanmin(z), np.nanmax(z)) if (~missing).any() else (0, 1)), plt.get_cmap("copper"))
+    figure.colorbar(levels, ax=axes, shrink=0.8, label="height (um)")
     axes.set(xlabel="x (mm)", ylabel="y (mm)", title=title)
     figure.tight_layout()
     return figure_png(figure)
@@ -162,10 +165,11 @@ def _float32_base64(values):
     return base64.b64encode(np.ascontiguousarray(values, dtype="<f4").tobytes()).decode("ascii")
 
 
-def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(), wrinkles=None, evaluations=None, settings=None,
-                 cross_sections=()):
+def build_report(*, title, height, albedo=None, parameters=(), regions=None, fractal_results=(), wrinkles=None, evaluations=None,
+                 settings=None, cross_sections=()):
     """The report as one HTML string (see the module notes). ``parameters`` is a list of
-    :class:`skintopo.texture.Parameter`; ``wrinkles`` a :class:`skintopo.wrinkles.WrinkleMeasures`;
+    :class:`skintopo.texture.Parameter` (the whole field); ``regions`` {name: (box in um
+    x0, y0, x1, y1, its list of Parameter)} for the extra regions; ``wrinkles`` a :class:`skintopo.wrinkles.WrinkleMeasures`;
     ``evaluations`` {height map name: evaluation dict} when ground truth exists, with
     ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
     and options, shown as given (escaped)."""
@@ -194,6 +198,8 @@ def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(
         "wrinkle_rows": [[w.id, w.length_mm, w.orientation_deg, w.mean_depth_um, w.max_depth_um, w.mean_width_mm, w.cross_section_mm2,
                           w.volume_mm3, w.severity] for w in (wrinkles.wrinkles if wrinkles is not None else ())],
         "parameter_rows": [[p.name, p.value, p.unit, p.reference] for p in parameters],
+        "regions": [(name, box) for name, (box, _) in (regions or {}).items()],
+        "region_rows": _region_rows(parameters, regions),
         "fractal_plot": fractal_png(fractal_results) if fractal_results else None,
         "evaluation_rows": [[n, e["rms_height_error_um"], e.get("rms_height_error_in_wrinkles_um"), e["l2_normal_error"],
                              e["mean_angular_error_deg"]] for n, e in (evaluations or {}).items()],
@@ -203,6 +209,14 @@ def build_report(*, title, height, albedo=None, parameters=(), fractal_results=(
         "payload": Markup(payload.replace("<", "\\u003c")),
     }
     return render_page("report.html", context, style="report.css", script="report.js")
+
+
+def _region_rows(parameters, regions):
+    """One row per field parameter: name, unit, field value, then each region's value."""
+    if not regions:
+        return []
+    values = [{p.name: p.value for p in region} for _, region in regions.values()]
+    return [[p.name, p.unit, p.value, *(region.get(p.name) for region in values)] for p in parameters]
 
 
 @functools.cache

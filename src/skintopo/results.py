@@ -76,8 +76,10 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
         np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
     write_json(folder / "summary.json", summary)
+    boxes = dict(measurement.options.regions)
+    regions = {name: (boxes[name], values) for name, values in measurement.texture.items() if name != "field"}
     report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
-                          fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles, evaluations=evaluations,
+                          regions=regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles, evaluations=evaluations,
                           settings=settings, cross_sections=cross_sections)
     (folder / "report.html").write_text(report, encoding="utf-8")
     return summary
