@@ -26,6 +26,11 @@ def test_report_is_self_contained_and_escapes_user_text():
     page = build_report(title=title, height=HeightMap(z, 20.0), settings={"note": "</script><b>bold</b>"})
     assert "<script>alert" not in page and "&lt;script&gt;alert" in page
     assert "</script><b>" not in page
+    nested = build_report(title="t", height=HeightMap(z, 20.0), settings={"options": {"height": {"method": "physics", "kernels": None},
+                                                                                    "regions": [["a", [0.0, 0.0, 5.5, 9.0]]]},
+                                                                        "shape": [96, 96]})
+    assert "<td>options &gt; height &gt; method</td><td>physics</td>" in nested
+    assert "<td>options &gt; height &gt; kernels</td><td>none</td>" in nested and "<td>shape</td><td>96, 96</td>" in nested
     assert not re.search(r"(src|href)=['\"]?(https?:)?//", page)  # nothing loaded from anywhere
     assert "http://" not in page and "https://" not in page
     assert "default-src 'none'" in page

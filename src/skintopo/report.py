@@ -204,11 +204,28 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "evaluation_rows": [[n, e["rms_height_error_um"], e.get("rms_height_error_in_wrinkles_um"), e["l2_normal_error"],
                              e["mean_angular_error_deg"]] for n, e in (evaluations or {}).items()],
         "cross_sections": cross_sections,
-        "settings_rows": [[k, json.dumps(v, default=str)] for k, v in (settings or {}).items()],
+        "settings_rows": _setting_rows(settings or {}),
         # JSON inside <script type=application/json> is raw text: escape '<' so no '</script>' can close it.
         "payload": Markup(payload.replace("<", "\\u003c")),
     }
     return render_page("report.html", context, style="report.css", script="report.js")
+
+
+def _setting_rows(settings, prefix=""):
+    """Nested settings as readable rows: ("options > height > method", "physics"); a list of
+    plain values joined by commas, anything deeper as JSON."""
+    rows = []
+    for key, value in settings.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and value:
+            rows += _setting_rows(value, f"{name} > ")
+        elif isinstance(value, (list, tuple)) and all(isinstance(v, (int, float, str)) for v in value):
+            rows.append([name, ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)])
+        elif isinstance(value, (list, tuple, dict)):
+            rows.append([name, json.dumps(value, default=str)])
+        else:
+            rows.append([name, "none" if value is None else value])
+    return rows
 
 
 def _region_rows(parameters, regions):
