@@ -7,16 +7,32 @@ decode(all); decode(all.mesh);
 function finite(v) { return v !== null && Number.isFinite(v); }
 // Cross-section viewer: one image column (a vertical line, across horizontal wrinkles) chosen with the slider.
 const slider = document.getElementById('row'), profile = document.getElementById('profile');
+let zlo = Infinity, zhi = -Infinity;  // one vertical scale for every position of the slider
+for (const r of grid.z) for (const v of r) if (finite(v)) { zlo = Math.min(zlo, v); zhi = Math.max(zhi, v); }
+if (!(zhi > zlo)) { zlo = (finite(zlo) ? zlo : 0) - 1; zhi = zlo + 2; }
+function ticks(lo, hi, count) {  // round steps (1, 2, 5 x 10^k) covering [lo, hi]
+  const raw = (hi - lo) / count, unit = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map(f => f * unit).find(s => s >= raw), out = [];
+  for (let t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * step; t += step) out.push(+t.toFixed(10));
+  return out;
+}
 function drawProfile() {
   const row = grid.z[+slider.value], ctx = profile.getContext('2d'), w = profile.width, h = profile.height;
-  ctx.clearRect(0, 0, w, h);
-  const vals = row.filter(finite), lo = Math.min(...vals), hi = Math.max(...vals);
+  const left = 58, right = 10, top = 10, bottom = 34, length = (row.length - 1) * grid.dy / 1000;  // mm
+  const X = mm => left + mm / (length || 1) * (w - left - right), Y = v => h - bottom - (v - zlo) / (zhi - zlo) * (h - top - bottom);
+  ctx.clearRect(0, 0, w, h); ctx.strokeStyle = '#999'; ctx.fillStyle = '#333'; ctx.lineWidth = 1; ctx.font = '11px sans-serif';
+  ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, h - bottom); ctx.lineTo(w - right, h - bottom); ctx.stroke();
+  ctx.textAlign = 'right'; ctx.textBaseline = 'middle';
+  for (const t of ticks(zlo, zhi, 4)) { ctx.fillText(t.toString(), left - 6, Y(t)); ctx.beginPath(); ctx.moveTo(left - 3, Y(t)); ctx.lineTo(left, Y(t)); ctx.stroke(); }
+  ctx.textAlign = 'center'; ctx.textBaseline = 'top';
+  for (const t of ticks(0, length, 6)) { ctx.fillText(t.toString(), X(t), h - bottom + 5); ctx.beginPath(); ctx.moveTo(X(t), h - bottom); ctx.lineTo(X(t), h - bottom + 3); ctx.stroke(); }
+  ctx.fillText('y (mm, top to bottom)', (left + w - right) / 2, h - 14);
+  ctx.save(); ctx.translate(12, (top + h - bottom) / 2); ctx.rotate(-Math.PI / 2); ctx.fillText('height (um)', 0, -4); ctx.restore();
   ctx.strokeStyle = '#7a3b12'; ctx.lineWidth = 1.5; ctx.beginPath(); let pen = false;
   row.forEach((v, i) => { if (!finite(v)) { pen = false; return; }
-    const x = 40 + i * (w - 50) / (row.length - 1), y = h - 25 - (v - lo) / ((hi - lo) || 1) * (h - 40);
+    const x = X(i * grid.dy / 1000), y = Y(v);
     if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y); pen = true; });
-  ctx.stroke(); ctx.fillStyle = '#333';
-  ctx.fillText((hi - lo).toFixed(1) + ' um range', 45, 12);
+  ctx.stroke();
   document.getElementById('rowlabel').textContent = (slider.value * grid.dx / 1000).toFixed(2) + ' mm';
 }
 slider.max = grid.z.length - 1; slider.value = Math.floor(grid.z.length / 2);
