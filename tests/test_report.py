@@ -86,6 +86,14 @@ def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
     # The 3-D canvas sits below the two surface images: its area must not be blank.
     band = image[int(0.42 * image.shape[0]) : int(0.62 * image.shape[0]), 40:700]
     assert band.std() > 20 and len(np.unique(band.reshape(-1, 3), axis=0)) > 200
+    # On a phone (390 px) nothing is cut off: wide tables scroll inside their box, so the last
+    # columns of the whole page are background only.
+    phone = tmp_path / "phone.png"
+    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
+                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                    f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={phone}", "--window-size=390,6000",
+                    (out / "report.html").as_uri()], capture_output=True, text=True, timeout=120)
+    assert (read_png(phone)[..., :3][:, -6:] >= 250).all(), "the report reaches the right edge at 390 px"
 
 
 def test_demo_command_runs_at_a_small_size(tmp_path, capsys):
