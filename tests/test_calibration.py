@@ -5,12 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from skintopo.calibration import calibrate_lights, sphere_normals
+from skintopo.calibration import calibrate_lights
 from skintopo.cli import main
 from skintopo.errors import SkinTopoError
 from skintopo.formats import write_png
+from skintopo.synth.targets import sphere_images, sphere_normals_of
 
-SHAPE, SPHERE = (240, 300), (152.3, 117.8, 86.4)  # cx, cy, r in pixels
+SHAPE = (240, 300)
+SPHERE = sphere_images("matte-sphere", np.zeros((0, 3)), shape=SHAPE)[1]  # (cx, cy, r) in pixels, off the pixel grid
+INSIDE = np.isfinite(sphere_normals_of(SHAPE, SPHERE[:2], SPHERE[2])[..., 2])
 
 
 def true_lights():
@@ -19,24 +22,18 @@ def true_lights():
     return np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
 
 
-def render_chrome(light, rng, *, gain=3.0, noise=0.003):
-    """Mirror sphere: the light (an LED about 2 degrees wide) reflected where the mirror
-    direction of the view meets it, a dim reflected environment, black background, noise,
-    clipped at full scale (saturated highlight), 16-bit."""
-    normals = sphere_normals(SHAPE, SPHERE)
-    inside = np.isfinite(normals[..., 2])
-    n = np.nan_to_num(normals)
-    mirror = 2 * n[..., 2:3] * n - np.array([0.0, 0.0, 1.0])
-    angle = np.degrees(np.arccos(np.clip(mirror @ light, -1, 1)))
-    image = np.where(inside, 0.06 + gain * np.exp(-((angle / 2.0) ** 2)), 0.0)
-    image = image + noise * rng.standard_normal(SHAPE)
-    return (np.clip(image, 0, 1) * 65535).astype(np.uint16)
+def sixteen_bit(images):
+    return [np.round(image * 65535).astype(np.uint16) for image in images]
 
 
-def render_matte(light, intensity):
-    normals = np.nan_to_num(sphere_normals(SHAPE, SPHERE))
-    image = 0.7 * intensity * np.maximum(normals @ light, 0)
-    return (np.clip(image, 0, 1) * 65535).astype(np.uint16)
+def render_chrome(lights, seed=0):
+    """Mirror sphere (skintopo.synth.targets: an LED about 2 degrees wide reflected where the
+    mirror direction of the view meets it, a dim room, noise, a saturated highlight), 16-bit."""
+    return sixteen_bit(sphere_images("chrome-sphere", lights, shape=SHAPE, seed=seed)[0])
+
+
+def render_matte(lights, intensities):
+    return sixteen_bit(sphere_images("matte-sphere", lights, shape=SHAPE, intensities=intensities, noise=0.0)[0])
 
 
 def write(folder, images):
@@ -53,9 +50,8 @@ def angle_degrees(a, b):
 
 
 def test_chrome_sphere_gives_light_directions_within_half_a_degree(tmp_path):
-    rng = np.random.default_rng(0)
     lights = true_lights()
-    paths = write(tmp_path / "chrome", [render_chrome(light, rng) for light in lights])
+    paths = write(tmp_path / "chrome", render_chrome(lights))
     result = calibrate_lights(paths)
     found = np.array([entry["light"] for entry in result["lights"]])
     errors = angle_degrees(found, lights)
@@ -67,7 +63,7 @@ def test_chrome_sphere_gives_light_directions_within_half_a_degree(tmp_path):
 def test_matte_sphere_gives_directions_and_relative_intensities(tmp_path):
     lights = true_lights()
     intensity = np.array([1.0, 0.8, 0.9, 0.7, 1.1, 0.95])
-    paths = write(tmp_path / "matte", [render_matte(light, e) for light, e in zip(lights, intensity)])
+    paths = write(tmp_path / "matte", render_matte(lights, intensity))
     result = calibrate_lights(paths, method="matte", mask=None)
     found = np.array([entry["light"] for entry in result["lights"]])
     assert angle_degrees(found, lights).max() < 0.5
@@ -75,8 +71,7 @@ def test_matte_sphere_gives_directions_and_relative_intensities(tmp_path):
 
 
 def test_calibrate_command_writes_lights_json(tmp_path, capsys):
-    rng = np.random.default_rng(1)
-    paths = write(tmp_path / "chrome", [render_chrome(light, rng) for light in true_lights()[:4]])
+    paths = write(tmp_path / "chrome", render_chrome(true_lights()[:4], seed=1))
     out = tmp_path / "lights.json"
     assert main(["calibrate", "lights", *map(str, paths), "-o", str(out)]) == 0
     data = json.loads(out.read_text())
@@ -84,18 +79,17 @@ def test_calibrate_command_writes_lights_json(tmp_path, capsys):
 
 
 def test_bad_sphere_images(tmp_path, capsys):
-    rng = np.random.default_rng(2)
     dark = np.zeros(SHAPE, np.uint16)
     with pytest.raises(SkinTopoError, match="sphere not found"):
         calibrate_lights(write(tmp_path / "none", [dark, dark]))
-    no_highlight = (np.where(np.isfinite(sphere_normals(SHAPE, SPHERE)[..., 2]), 0.3, 0.0) * 65535).astype(np.uint16)
-    paths = write(tmp_path / "missing", [render_chrome(true_lights()[0], rng), no_highlight])
+    no_highlight = (np.where(INSIDE, 0.3, 0.0) * 65535).astype(np.uint16)
+    paths = write(tmp_path / "missing", [render_chrome(true_lights()[:1], seed=2)[0], no_highlight])
     with pytest.raises(SkinTopoError, match="sphere_1.png: no specular highlight"):
         calibrate_lights(paths)
-    burnt = render_chrome(true_lights()[0], rng, gain=3.0)
-    burnt[np.isfinite(sphere_normals(SHAPE, SPHERE)[..., 2])] = 65535
+    burnt = render_chrome(true_lights()[:1], seed=3)[0]
+    burnt[INSIDE] = 65535
     with pytest.raises(SkinTopoError, match="sphere_0.png: .* of the sphere is saturated"):
-        calibrate_lights(write(tmp_path / "burnt", [burnt]), mask=np.isfinite(sphere_normals(SHAPE, SPHERE)[..., 2]))
+        calibrate_lights(write(tmp_path / "burnt", [burnt]), mask=INSIDE)
     (tmp_path / "broken.nef").write_bytes(b"not a raw file")
     assert main(["calibrate", "lights", str(tmp_path / "broken.nef"), "-o", str(tmp_path / "l.json")]) == 2
     assert "broken.nef: not a readable camera raw file" in capsys.readouterr().err
@@ -162,3 +156,30 @@ def test_dark_frame_and_crosstalk(tmp_path):
     (tmp_path / "acquisition.json").write_text(json.dumps(manifest))
     with pytest.raises(SkinTopoError, match="'crosstalk' must be an invertible 3 x 3 matrix"):
         load_acquisition(tmp_path)
+
+
+@pytest.mark.slow
+def test_rehearse_a_real_device_from_calibration_to_measure_without_writing_json(tmp_path, capsys):
+    """synth calibration targets -> calibrate lights -> init -> measure, as with a real camera:
+    the simulator writes the skin images without a manifest and a chrome sphere under the same
+    lights; the lights found are within half a degree of the simulator's, and measure runs on
+    the manifest that init wrote."""
+    spheres, skin, lights_json = tmp_path / "spheres", tmp_path / "capture", tmp_path / "lights.json"
+    assert main(["synth", "--target", "chrome-sphere", "-o", str(spheres), "-q"]) == 0
+    assert main(["synth", "-o", str(skin), "--size", "96", "--no-manifest", "-q"]) == 0
+    assert not (skin / "acquisition.json").exists() and (skin / "red_00.png").is_file()
+    truth = json.loads((spheres / "ground_truth.json").read_text())
+    files = [str(spheres / name) for name in truth["files"]]
+    assert main(["calibrate", "lights", *files, "-o", str(lights_json), "-q"]) == 0
+    assert main(["init", str(skin), "--lights", str(lights_json), "--pixel-um", "20", "--mask", "mask.png", "-q"]) == 0
+    manifest = json.loads((skin / "acquisition.json").read_text())
+    red = [entry["light"] for entry in manifest["images"] if entry["band"] == "red"]
+    errors = angle_degrees(red, truth["lights"])
+    print("lights from the simulated chrome sphere: errors (deg)", np.round(errors, 3))
+    assert errors.max() < 0.5
+    assert main(["measure", str(skin), "-o", str(tmp_path / "out"), "-q"]) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["source"]["height"] == "spectral correction (paper)"
+    assert main(["synth", "--target", "matte-sphere", "-o", str(tmp_path / "matte"), "-q"]) == 0
+    matte = json.loads((tmp_path / "matte" / "ground_truth.json").read_text())
+    found = calibrate_lights([tmp_path / "matte" / name for name in matte["files"]], method="matte")
+    assert angle_degrees([entry["light"] for entry in found["lights"]], matte["lights"]).max() < 0.5

@@ -2,7 +2,8 @@
 matte white sphere, with relative intensities from the matte one.
 
 Chrome sphere. The sphere is found from a mask or, by default, automatically: the brightest
-value each pixel takes over all images, thresholded (Otsu), its largest component, and a
+value each pixel takes over all images, thresholded (Otsu, on the logarithm of the
+intensity, so that the highlights cannot take the threshold for themselves), its largest component, and a
 least-squares circle through that component's boundary (Kasa fit) for the centre, and the
 radius from its area. In each image the
 specular highlight is the intensity-weighted centroid of the pixels within 10% of the
@@ -63,7 +64,10 @@ def find_sphere(images, mask=None, *, names=None):
         brightest = np.max([_grey(image) for image in images], axis=0)
         if not np.ptp(brightest) > 0:
             raise SkinTopoError("sphere not found: the images are uniform")
-        region = brightest > threshold_otsu(brightest)
+        # Otsu on log intensity: a chrome sphere's highlights (a few dozen saturated pixels per
+        # light) would otherwise take the threshold for themselves and leave the dim sphere out
+        level = np.log(np.maximum(brightest, 0.0) + 1e-3 * brightest.max())
+        region = level > threshold_otsu(level)
         labels, count = scipy.ndimage.label(region)
         if count == 0:
             raise SkinTopoError("sphere not found in the images")

@@ -37,3 +37,5 @@ DEFAULT_P = 10.0  # texture: % (ISO 25178-2 default for Vmp, Vmc, Vvc)
 DEFAULT_Q = 80.0  # %
 
 DEFAULT_SCHEDULER_TIMEOUT_S = 10.0  # batch: seconds to wait for a Dask scheduler
+
+CALIBRATION_TARGETS = ("chrome-sphere", "matte-sphere")  # synth: targets for 'calibrate lights'

@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from skintopo.cli import options as shared
+from skintopo.defaults import CALIBRATION_TARGETS
 from skintopo.errors import SkinTopoError
 
 
@@ -16,6 +17,15 @@ def run(args):
     from skintopo.synth import (PRESETS, Effects, default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition,
                                 write_synthetic_acquisition)
 
+    if args.target is not None:
+        from skintopo.synth.targets import write_sphere_target
+
+        check_output_folder(args.out, overwrite=args.overwrite)
+        lights = default_settings().lights
+        write_sphere_target(args.out, args.target, lights, seed=args.seed, overwrite=args.overwrite)
+        shared.say(args, f"wrote {Path(args.out).resolve()}: {args.target} under {len(lights)} lights (sphere_1.png, ...; "
+                         "the true lights in ground_truth.json)")
+        return 0
     if args.preset not in PRESETS:
         raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")
     check_output_folder(args.out, overwrite=args.overwrite)
@@ -41,7 +51,7 @@ def run(args):
     capture_seed = args.seed if args.capture_seed is None else args.capture_seed
     bands, info = simulate_acquisition(surface, settings, seed=capture_seed)
     write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite,
-                                capture_seed=capture_seed)
+                                capture_seed=capture_seed, manifest=not args.no_manifest)
     shared.say(
         args,
         f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin ({args.optics} optics), {spec.size_px[1]}x{spec.size_px[0]} px "
@@ -88,6 +98,10 @@ def add_parser(commands):
                        help="multiply the depth of wrinkle ID (1 = the top one) by FACTOR, e.g. 2=0.7: a treated visit (repeatable)")
     synth.add_argument("--noise", type=shared.non_negative_float, default=1.0, help="sensor noise level, 0 = none, 1 = default camera")
     synth.add_argument("--saturate", action="store_true", help="expose so that specular highlights clip")
+    synth.add_argument("--no-manifest", action="store_true",
+                       help="write the images without acquisition.json, as a camera would (then 'skintopo init' makes it)")
+    synth.add_argument("--target", choices=CALIBRATION_TARGETS,
+                       help="instead of skin: a calibration target under the same lights, sphere_1.png, ... for 'skintopo calibrate lights'")
     synth.add_argument("--no-interreflection", action="store_true", help="no light bouncing between skin points (wrinkles)")
     synth.add_argument("--single-bounce", action="store_true", help="one interreflection bounce instead of converged radiosity")
     synth.add_argument("--no-specular", action="store_true", help="no surface (specular) reflection")

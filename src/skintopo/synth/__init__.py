@@ -127,10 +127,11 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
 
 
 def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: RenderSettings, seed, info=None, overwrite=False,
-                                capture_seed=None):
+                                capture_seed=None, manifest=True):
     """Write an acquisition folder plus ``ground_truth/`` (height.x3p, normals.npy,
     wrinkles.png with wrinkle ids, surface.json), all or nothing. ``seed`` made the surface,
-    ``capture_seed`` (default: the same) the sensor noise."""
+    ``capture_seed`` (default: the same) the sensor noise. ``manifest=False`` leaves out
+    ``acquisition.json``: the images as a camera writes them, for ``skintopo init``."""
     with staged_output_folder(out, overwrite=overwrite) as staging:
         write_acquisition(
             staging, bands, surface.spec.pixel_um, mask=np.ones(surface.height.shape, bool),
@@ -161,6 +162,8 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
             "diagnostics": info or {},
         }
         (truth / "surface.json").write_text(json.dumps(description, indent=2, default=float) + "\n", encoding="utf-8")
+        if not manifest:
+            (staging / "acquisition.json").unlink()
     return Path(out)
 
 

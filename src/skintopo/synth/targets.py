@@ -1,0 +1,83 @@
+"""Calibration targets seen by the simulated device: a chrome (mirror) sphere and a matte
+white sphere under each light, to rehearse ``skintopo calibrate lights`` and ``skintopo init``.
+
+Orthographic camera looking down -z, image rows running downward (y up), directional lights.
+The sphere (centre and radius in pixels) gives each pixel its normal
+n = ((x - cx) / r, -(y - cy) / r, sqrt(1 - ...)).
+
+Chrome: a mirror reflects the light where the mirror direction of the view, 2 (n . v) n - v,
+meets it; the LED is a small disc (angular radius 2 degrees, a Gaussian spot), over a dim
+reflected room (6% of full scale), with sensor noise; the highlight saturates, as it does
+on a real mirror sphere.
+
+Matte: a Lambertian white sphere, I = e rho max(0, n . l), rho = 0.7, with the light's
+relative intensity e.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from skintopo.defaults import CALIBRATION_TARGETS
+from skintopo.errors import SkinTopoError
+from skintopo.formats import write_png
+from skintopo.outputs import staged_output_folder
+
+LED_ANGULAR_RADIUS_DEG = 2.0
+ROOM_LEVEL = 0.06
+MATTE_ALBEDO = 0.7
+
+
+def sphere_normals_of(shape, centre_xy, radius):
+    """Unit normals (rows, columns, 3) of a sphere seen from above; NaN outside it."""
+    rows, columns = np.indices(shape, dtype=float)
+    x, y = (columns - centre_xy[0]) / radius, -(rows - centre_xy[1]) / radius
+    z2 = 1 - x**2 - y**2
+    inside = z2 > 0
+    return np.where(inside[..., None], np.dstack([x, y, np.sqrt(np.where(inside, z2, 0.0))]), np.nan)
+
+
+def sphere_images(kind, lights, *, shape=(240, 320), intensities=None, noise=0.003, seed=0):
+    """One image per light of the target ``kind`` (fractions of full scale, clipped to [0, 1]).
+
+    Returns the images and the sphere as (centre x, centre y, radius) in pixels.
+    """
+    if kind not in CALIBRATION_TARGETS:
+        raise SkinTopoError(f"unknown calibration target {kind!r}; choose from {list(CALIBRATION_TARGETS)}")
+    lights = np.asarray(lights, dtype=float)
+    intensities = np.ones(len(lights)) if intensities is None else np.asarray(intensities, dtype=float)
+    sphere = (shape[1] / 2 + 0.37, shape[0] / 2 - 0.21, 0.38 * min(shape))  # off the pixel grid on purpose
+    normals = sphere_normals_of(shape, sphere[:2], sphere[2])
+    inside = np.isfinite(normals[..., 2])
+    n = np.nan_to_num(normals)
+    rng = np.random.default_rng(seed)
+    images = []
+    for light, intensity in zip(lights, intensities):
+        if kind == "chrome-sphere":
+            mirror = 2 * n[..., 2:3] * n - np.array([0.0, 0.0, 1.0])
+            angle = np.degrees(np.arccos(np.clip(mirror @ light, -1, 1)))
+            image = ROOM_LEVEL + 3.0 * intensity * np.exp(-((angle / LED_ANGULAR_RADIUS_DEG) ** 2))
+        else:
+            image = MATTE_ALBEDO * intensity * np.maximum(n @ light, 0.0)
+        image = np.where(inside, image, 0.0) + noise * rng.standard_normal(shape)
+        images.append(np.clip(image, 0.0, 1.0))
+    return images, sphere
+
+
+def write_sphere_target(out, kind, lights, *, shape=(240, 320), intensities=None, seed=0, overwrite=False):
+    """Write ``sphere_1.png``, ... (16-bit) and ``ground_truth.json`` (the true lights and
+    sphere) into the new folder ``out``, all or nothing."""
+    import json
+
+    images, sphere = sphere_images(kind, lights, shape=shape, intensities=intensities, seed=seed)
+    with staged_output_folder(out, overwrite=overwrite) as staging:
+        for index, image in enumerate(images, start=1):
+            write_png(staging / f"sphere_{index}.png", np.round(image * 65535).astype(np.uint16))
+        truth = {"target": kind, "lights": np.asarray(lights).tolist(),
+                 "intensities": None if intensities is None else np.asarray(intensities).tolist(),
+                 "sphere_px": {"centre_x": sphere[0], "centre_y": sphere[1], "radius": sphere[2]},
+                 "files": [f"sphere_{i}.png" for i in range(1, len(images) + 1)]}
+        (staging / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
+    return Path(out)
