@@ -49,7 +49,8 @@ def run(args):
     started = time.perf_counter()
     surface = make_surface(spec, seed=args.seed)
     capture_seed = args.seed if args.capture_seed is None else args.capture_seed
-    bands, info = simulate_acquisition(surface, settings, seed=capture_seed)
+    bands, info = simulate_acquisition(surface, settings, seed=capture_seed,
+                                       progress=lambda bands: shared.progress(bands, quiet=args.quiet, desc="render", total=3))
     write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite,
                                 capture_seed=capture_seed, manifest=not args.no_manifest)
     shared.say(

@@ -91,8 +91,8 @@ def preset_spec(name, *, size_px=256, pixel_um=20.0) -> SurfaceSpec:
     return SurfaceSpec(size_px=shape, pixel_um=float(pixel_um), wrinkles=tuple(built))
 
 
-def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None = None, seed=0):
-    """Render every band and pass it through the sensor.
+def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None = None, seed=0, progress=iter):
+    """Render every band and pass it through the sensor (``progress`` wraps the bands' loop).
 
     Returns
     -------
@@ -113,7 +113,7 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
         settings = replace(settings, interreflection_radius_um=max(400.0, widest))
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
-    linear, info = render_bands(surface.height, surface.normals, settings, rng)
+    linear, info = render_bands(surface.height, surface.normals, settings, rng, progress)
     linear["white"] = (linear["red"] + linear["green"] + linear["blue"]) / 3
     info["seconds_render"] = time.perf_counter() - start
     lights = np.asarray(settings.lights, dtype=float)

@@ -164,10 +164,11 @@ def _albedo_maps(shape, pixel, base, vary, rng):
     return {band: value * variation for band, value in base.items()}
 
 
-def render_bands(height, normals, settings: RenderSettings, rng):
+def render_bands(height, normals, settings: RenderSettings, rng, progress=iter):
     """Linear images per band, before the sensor: dict band -> (m, rows, columns).
 
-    Also returns the render diagnostics (iterations, operator size).
+    Also returns the render diagnostics (iterations, operator size). ``progress`` wraps the
+    iteration over the three bands (e.g. a progress bar).
     """
     z = np.asarray(height.z, dtype=float)
     pixel = height.spacing[1]
@@ -186,7 +187,7 @@ def render_bands(height, normals, settings: RenderSettings, rng):
     if effects.shadows:
         direct *= ~np.stack([cast_shadow(z, pixel, light) for light in lights])
     images = {}
-    for band in ("red", "green", "blue"):
+    for band in progress(("red", "green", "blue")):
         transport = optics.scattering[band].operator(z.shape, pixel) if effects.translucency else None
         stack = []
         for i, light in enumerate(lights):
