@@ -22,7 +22,7 @@ def run(args):
 
         check_output_folder(args.out, overwrite=args.overwrite)
         lights = default_settings().lights
-        write_sphere_target(args.out, args.target, lights, seed=args.seed, overwrite=args.overwrite)
+        write_sphere_target(args.out, args.target, lights, shape=(args.size, args.size), seed=args.seed, overwrite=args.overwrite)
         shared.say(args, f"wrote {Path(args.out).resolve()}: {args.target} under {len(lights)} lights (sphere_1.png, ...; "
                          "the true lights in ground_truth.json)")
         return 0
