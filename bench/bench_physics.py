@@ -8,7 +8,8 @@ and, with ``--speed``, the time of physics on a 1000 x 1000 acquisition (12 imag
 Results: bench/results/physics.json and physics_speed.json.
 
 Run from bench/: ``python bench_physics.py [SEEDS] [--optics PROFILE]`` (default 6 seeds, the
-default-v1 skin optics; another profile writes physics-PROFILE.json), ``python bench_physics.py --speed``.
+default-v1 skin optics; another profile writes physics-PROFILE.json; ``--physics-solver robust``
+adds -robust to the name), ``python bench_physics.py --speed``.
 """
 
 import argparse
@@ -41,7 +42,7 @@ def scores(height, surface):
             "depth_bias": round(float(np.mean(np.array(found["wrinkle_max_depth_um"]) / found["wrinkle_max_depth_true_um"] - 1)), 4)}
 
 
-def case(preset, skin, seed, ablation, optics="default-v1"):
+def case(preset, skin, seed, ablation, optics="default-v1", solver="least-squares"):
     surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
     settings = RenderSettings(skin=skin, lights=default_lights(), optics=optics_profile(optics))
     bands, info = simulate_acquisition(surface, settings, seed=seed)
@@ -55,7 +56,8 @@ def case(preset, skin, seed, ablation, optics="default-v1"):
     for method in ("paper", "feathered"):
         row[method] = scores(spectral_correction(normals, 20.0, method=method).height, surface)
     runs = list(ABLATIONS.items()) if ablation else [("physics", {})]
-    runs.append(("physics-given-kernels", {"kernels": optics_profile(optics).scattering}))  # the profile's true diffusion profiles
+    runs.append(("physics-given-kernels", {"kernels": optics_profile(optics).scattering}))
+    runs = [(name, switches | {"solver": solver}) for name, switches in runs]  # the profile's true diffusion profiles
     for name, switches in runs:
         start = time.perf_counter()
         result = physics_height(images, lights, 20.0, **switches)
@@ -65,12 +67,12 @@ def case(preset, skin, seed, ablation, optics="default-v1"):
     return row
 
 
-def main(seeds, optics):
+def main(seeds, optics, solver):
     cases = []
     for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
         for skin in ("light", "dark"):
             for seed in range(1, seeds + 1):
-                row = case(preset, skin, seed, ablation=seed == 1, optics=optics)
+                row = case(preset, skin, seed, ablation=seed == 1, optics=optics, solver=solver)
                 cases.append({"preset": preset, "skin": skin, "seed": seed, "results": row})
                 best_other = min(v["rms_um"] for k, v in row.items() if k in (*BANDS, "paper", "feathered"))
                 print(preset, skin, seed, "physics", row["physics"]["rms_um"], "given kernels", row["physics-given-kernels"]["rms_um"],
@@ -84,8 +86,9 @@ def main(seeds, optics):
         return f"{sum(all(c['results'][method][key] < c['results'][m][key] for m in others) for c in cases)}/{len(cases)}"
 
     flagged = sum(not c["results"]["physics"]["plausible"] for c in cases)
-    write_result("physics" if optics == "default-v1" else f"physics-{optics}", {
-        "optics": optics, "summary": summary,
+    name = "physics" + ("" if optics == "default-v1" else f"-{optics}") + ("" if solver == "least-squares" else f"-{solver}")
+    write_result(name, {
+        "optics": optics, "physics_solver": solver, "summary": summary,
         "physics_best_rms_cases": best_cases("physics", "rms_um"), "physics_best_depth_cases": best_cases("physics", "depth_error"),
         "given_kernels_best_rms_cases": best_cases("physics-given-kernels", "rms_um"),
         "given_kernels_best_depth_cases": best_cases("physics-given-kernels", "depth_error"),
@@ -108,6 +111,7 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("seeds", nargs="?", type=int, default=6)
     parser.add_argument("--optics", default="default-v1")
+    parser.add_argument("--physics-solver", default="least-squares", help="photometric-stereo solver inside physics")
     parser.add_argument("--speed", action="store_true")
     arguments = parser.parse_args()
-    speed() if arguments.speed else main(arguments.seeds, arguments.optics)
+    speed() if arguments.speed else main(arguments.seeds, arguments.optics, arguments.physics_solver)

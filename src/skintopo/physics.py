@@ -74,7 +74,7 @@ from skintopo.filters import polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
-from skintopo.normals import photometric_stereo
+from skintopo.normals import DEFAULT_SOLVER, photometric_stereo
 from skintopo.transport import cast_shadow, interreflection_operator
 
 REQUIRED_BANDS = ("red", "green", "blue")
@@ -344,7 +344,7 @@ def _check_inputs(images, lights):
 
 def physics_height(images, lights, spacing, *, mask=None, scattering=True, kernels=None, interreflection=True, highlights=True,
                    iterations=DEFAULT_ITERATIONS, tolerance=DEFAULT_TOLERANCE, radius_um=DEFAULT_RADIUS_UM,
-                   integrator=DEFAULT_INTEGRATOR) -> PhysicsResult:
+                   integrator=DEFAULT_INTEGRATOR, solver=DEFAULT_SOLVER) -> PhysicsResult:
     """Height that inverts scattering, interreflection and highlights (module notes).
 
     Parameters
@@ -370,6 +370,10 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         be estimated from the bands' ratios; known kernels remove that ambiguity.
     iterations : int
         At most this many passes of steps 2-4; ``tolerance`` stops earlier.
+    solver : str
+        The photometric-stereo solver of step 4 (:func:`skintopo.normals.photometric_stereo`):
+        ``"robust"`` leaves out an observation that a residual highlight makes clearly brighter
+        than the other lights predict.
 
     Returns
     -------
@@ -410,7 +414,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     for _ in range(iterations):
         spectra = np.stack([fourier.forward(direct[band] - specular_images) for band in REQUIRED_BANDS])
         shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, spectra))
-        stereo = photometric_stereo(shading, lights, mask=mask)
+        stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
         height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
                                    method=integrator)
