@@ -204,10 +204,11 @@ def test_correct_physics_writes_the_height_and_physics_json(tmp_path):
     assert kept["kernels"] == record["kernels"] and kept["converged"] == record["converged"]
     assert record["components"]["kernels_given"] is False and isinstance(record["plausible"], bool)
     given = subprocess.run([*run, "measure", str(acquisition), "-o", str(tmp_path / "given"), "--method", "physics",
-                            "--physics-kernels", "default-v1"], capture_output=True, text=True)
+                            "--physics-kernels", "default-v1", "--solver", "robust"], capture_output=True, text=True)
     assert given.returncode == 0, given.stderr
     summary = json.loads((tmp_path / "given" / "parameters.json").read_text())["summary"]
     assert summary["source"]["physics"]["components"]["kernels_given"] is True
+    assert summary["source"]["physics"]["components"]["solver"] == "robust" and record["components"]["solver"] == "least-squares"
     assert summary["source"]["physics"]["kernels"]["red"]["transfer_at_cycles_per_mm"]["8"] == pytest.approx(0.5, abs=1e-6)  # 50% spread
     unknown = subprocess.run([*run, "correct", str(acquisition), "-o", str(tmp_path / "unknown"), "--method", "physics",
                               "--physics-kernels", "marble"], capture_output=True, text=True)

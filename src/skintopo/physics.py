@@ -444,7 +444,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
-                  "interreflection": interreflection, "highlights": highlights,
+                  "interreflection": interreflection, "highlights": highlights, "solver": solver,
                   "interreflection_radius_um": radius_um if interreflection else None,
                   "interreflection_grid_factor": gather.factor if gather is not None else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,

@@ -227,7 +227,7 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         kernels = options.height.physics_kernels and optics_profile(options.height.physics_kernels).scattering
         physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
                                  acquisition.pixel_um, mask=acquisition.mask, kernels=kernels or None,
-                                 integrator=options.reconstruction.integrator)
+                                 integrator=options.reconstruction.integrator, solver=options.reconstruction.solver)
         return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
                                  None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)

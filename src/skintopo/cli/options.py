@@ -81,7 +81,8 @@ def add_reconstruction_options(parser):
         help=f"fraction of full scale at or above which a pixel is saturated and left out (default {DEFAULT_SATURATION})",
     )
     parser.add_argument("--solver", choices=SOLVERS, default=DEFAULT_SOLVER,
-                        help=f"photometric stereo solver: least-squares or robust (outlier rejection); default {DEFAULT_SOLVER}")
+                        help=f"photometric stereo solver: least-squares or robust (outlier rejection; with --method physics, "
+                        f"also inside its iteration); default {DEFAULT_SOLVER}")
     parser.add_argument(
         "--shadow-fraction", type=fraction, default=DEFAULT_SHADOW_FRACTION,
         help="observations below this fraction of the pixel's albedo (from a first fit) are taken as shadow and left out "
