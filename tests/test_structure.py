@@ -57,3 +57,15 @@ def test_the_command_line_parser_needs_no_numerical_library():
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'numpy', 'scipy', 'skimage', 'matplotlib'}))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]", done.stdout
+
+
+def test_help_texts_name_every_readable_height_map_format():
+    """Every command that reads a height map says which files it reads: all of them
+    (formats.READABLE; a user reported .sdf/.gwy/.tif working but missing from the help)."""
+    from skintopo.formats import READABLE
+
+    parsers = {" ".join(name): parser for name, parser in _subparsers(build_parser())}
+    for command, argument in (("measure", "input"), ("evaluate", "result"), ("evaluate", "reference"), ("compare", "baseline"),
+                              ("wrinkles", "input")):
+        text = next(a.help for a in parsers[command]._actions if a.dest == argument)
+        assert all(suffix in text for suffix in READABLE), (command, argument, text)

@@ -27,10 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
+from skintopo.defaults import HEIGHT_MAP_SUFFIXES
 from skintopo.errors import SkinTopoError
 
 METRES_PER_MICROMETRE = 1e-6
-READABLE = (".x3p", ".sdf", ".gwy", ".tif", ".tiff", ".npy")
+READABLE = HEIGHT_MAP_SUFFIXES
 WRITABLE = (".x3p", ".sdf", ".gwy", ".tif", ".tiff", ".npy", ".ply", ".stl")
 TIFF_LEVELS = 65534  # codes 1..65535 hold heights; 0 marks a missing point
 

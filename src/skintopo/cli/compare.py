@@ -38,7 +38,7 @@ def run(args):
 
 def add_parser(commands):
     compare = commands.add_parser("compare", help="before/after: register two visits, difference map, change of every parameter")
-    compare.add_argument("baseline", type=Path, help="baseline height map (.x3p, .npy) or result folder with height.x3p")
+    compare.add_argument("baseline", type=Path, help=f"baseline height map ({shared.HEIGHT_MAPS}) or result folder with height.x3p")
     compare.add_argument("follow_up", type=Path, metavar="after", help="follow-up height map or result folder")
     compare.add_argument("-o", "--out", type=Path, required=True, help="output folder (difference.x3p, changes.csv, changes.json)")
     compare.add_argument("--repeat", type=Path, help="a second baseline capture of the unchanged skin: gives detection limits")

@@ -39,8 +39,8 @@ def run(args):
 
 def add_parser(commands):
     evaluate = commands.add_parser("evaluate", help="accuracy of a height map against a reference (ground truth, replica)")
-    evaluate.add_argument("result", type=Path, help="height map (.x3p or .npy)")
-    evaluate.add_argument("reference", type=Path, help="reference height map (.x3p or .npy)")
+    evaluate.add_argument("result", type=Path, help=f"height map ({shared.HEIGHT_MAPS})")
+    evaluate.add_argument("reference", type=Path, help=f"reference height map ({shared.HEIGHT_MAPS})")
     evaluate.add_argument("-o", "--out", type=Path, default=Path("evaluation.json"), help="JSON file to write (default evaluation.json)")
     evaluate.add_argument("--wrinkles", type=Path, help="wrinkle label image (ground_truth/wrinkles.png) for in-wrinkle errors and depths")
     evaluate.add_argument("--pixel-um", type=shared.positive_float, help="pixel size for .npy maps")

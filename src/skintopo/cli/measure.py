@@ -37,7 +37,7 @@ def run(args):
 
 def add_parser(commands):
     measure = commands.add_parser("measure", help="surface texture (ISO 25178-2), volume and fractal parameters of a height map or acquisition")
-    measure.add_argument("input", type=Path, help="height map (.x3p, .npy) or acquisition folder")
+    measure.add_argument("input", type=Path, help=f"height map ({shared.HEIGHT_MAPS}), acquisition folder or result folder")
     measure.add_argument("-o", "--out", type=Path, required=True, help="output folder (parameters.json, parameters.csv)")
     shared.add_measure_options(measure)
     shared.add_output_switches(measure)

@@ -22,11 +22,14 @@ from skintopo.defaults import (
     DEFAULT_SHADOW_FRACTION,
     DEFAULT_SHORT_CUTOFF_UM,
     DEFAULT_SOLVER,
+    HEIGHT_MAP_SUFFIXES,
     HEIGHT_METHODS,
     HIGHLIGHT_MODES,
     INTEGRATOR_NAMES,
     SOLVERS,
 )
+
+HEIGHT_MAPS = "/".join(HEIGHT_MAP_SUFFIXES)  # for help texts: the height map files that can be read
 
 # The library (NumPy, SciPy) is imported inside the functions that use it, so that building
 # the parser (``skintopo --help``) stays fast.

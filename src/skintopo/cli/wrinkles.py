@@ -36,7 +36,7 @@ def run(args):
 
 def add_parser(commands):
     wrinkles = commands.add_parser("wrinkles", help="per-wrinkle measures: length, depth, width, volume, severity")
-    wrinkles.add_argument("input", type=Path, help="height map (.x3p, .npy) or an output folder holding height.x3p")
+    wrinkles.add_argument("input", type=Path, help=f"height map ({shared.HEIGHT_MAPS}) or an output folder holding height.x3p")
     wrinkles.add_argument("-o", "--out", type=Path, required=True, help="output folder (wrinkles.csv, wrinkles.json, wrinkles_overlay.png)")
     wrinkles.add_argument("--pixel-um", type=shared.positive_float, help="pixel size for .npy maps")
     shared.add_segmentation_options(wrinkles)
