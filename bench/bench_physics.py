@@ -20,6 +20,7 @@ import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.correction import spectral_correction
+from skintopo.defaults import DEFAULT_SKIN_OPTICS, DEFAULT_SOLVER
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
@@ -42,7 +43,7 @@ def scores(height, surface):
             "depth_bias": round(float(np.mean(np.array(found["wrinkle_max_depth_um"]) / found["wrinkle_max_depth_true_um"] - 1)), 4)}
 
 
-def case(preset, skin, seed, ablation, optics="default-v1", solver="least-squares"):
+def case(preset, skin, seed, ablation, optics=DEFAULT_SKIN_OPTICS, solver=DEFAULT_SOLVER):
     surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
     settings = RenderSettings(skin=skin, lights=default_lights(), optics=optics_profile(optics))
     bands, info = simulate_acquisition(surface, settings, seed=seed)
@@ -86,7 +87,7 @@ def main(seeds, optics, solver):
         return f"{sum(all(c['results'][method][key] < c['results'][m][key] for m in others) for c in cases)}/{len(cases)}"
 
     flagged = sum(not c["results"]["physics"]["plausible"] for c in cases)
-    name = "physics" + ("" if optics == "default-v1" else f"-{optics}") + ("" if solver == "least-squares" else f"-{solver}")
+    name = "physics" + ("" if optics == DEFAULT_SKIN_OPTICS else f"-{optics}") + ("" if solver == DEFAULT_SOLVER else f"-{solver}")
     write_result(name, {
         "optics": optics, "physics_solver": solver, "summary": summary,
         "physics_best_rms_cases": best_cases("physics", "rms_um"), "physics_best_depth_cases": best_cases("physics", "depth_error"),
@@ -110,8 +111,8 @@ def speed():
 if __name__ == "__main__":
     parser = argparse.ArgumentParser()
     parser.add_argument("seeds", nargs="?", type=int, default=6)
-    parser.add_argument("--optics", default="default-v1")
-    parser.add_argument("--physics-solver", default="least-squares", help="photometric-stereo solver inside physics")
+    parser.add_argument("--optics", default=DEFAULT_SKIN_OPTICS)
+    parser.add_argument("--physics-solver", default=DEFAULT_SOLVER, help="photometric-stereo solver inside physics")
     parser.add_argument("--speed", action="store_true")
     arguments = parser.parse_args()
     speed() if arguments.speed else main(arguments.seeds, arguments.optics, arguments.physics_solver)

@@ -39,8 +39,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from skintopo.defaults import DEFAULT_SCHEDULER_TIMEOUT_S
 from skintopo import __version__
+from skintopo.defaults import DEFAULT_SCHEDULER_TIMEOUT_S
 from skintopo.errors import SkinTopoError
 from skintopo.pipeline import MeasureOptions
 

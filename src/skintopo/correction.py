@@ -39,8 +39,6 @@ from skintopo.height import DEFAULT_INTEGRATOR, integrate_slopes, normals_to_gra
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.segmentation import WrinkleSegmentation, segment_wrinkles
 
-METHODS = CORRECTION_METHODS
-DEFAULT_METHOD = DEFAULT_CORRECTION_METHOD
 DEFAULT_FEATHER_UM = 150.0
 REQUIRED_BANDS = ("red", "green", "blue")
 
@@ -62,7 +60,7 @@ def combined_slopes(slopes):
     return (slopes["red"] + (slopes["green"] + slopes["blue"]) / 2) / 2
 
 
-def substitution_weight(wrinkle_mask, spacing, *, method=DEFAULT_METHOD, feather_um=DEFAULT_FEATHER_UM):
+def substitution_weight(wrinkle_mask, spacing, *, method=DEFAULT_CORRECTION_METHOD, feather_um=DEFAULT_FEATHER_UM):
     """Weight w of the combined slopes T: G = (1 - w) red + w T.
 
     ``paper``: w = 1 on the wrinkle pixels, 0 elsewhere. ``feathered``: w = 1 on the wrinkle,
@@ -80,7 +78,7 @@ def substitution_weight(wrinkle_mask, spacing, *, method=DEFAULT_METHOD, feather
     return weight
 
 
-def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_METHOD, feather_um=DEFAULT_FEATHER_UM,
+def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_CORRECTION_METHOD, feather_um=DEFAULT_FEATHER_UM,
                    integrator=DEFAULT_INTEGRATOR, mask=None):
     """The correction on slope fields.
 
@@ -100,8 +98,8 @@ def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_ME
     -------
     corrected, z_red, z_a : HeightMap
     """
-    if method not in METHODS:
-        raise SkinTopoError(f"unknown correction method {method!r}; choose from {list(METHODS)}")
+    if method not in CORRECTION_METHODS:
+        raise SkinTopoError(f"unknown correction method {method!r}; choose from {list(CORRECTION_METHODS)}")
     wrinkle_mask = np.asarray(wrinkle_mask, dtype=bool)
     p = {"red": red[0], "green": green[0], "blue": blue[0]}
     q = {"red": red[1], "green": green[1], "blue": blue[1]}
@@ -121,7 +119,7 @@ def correct_slopes(red, green, blue, wrinkle_mask, spacing, *, method=DEFAULT_ME
     return HeightMap(corrected, spacing, valid), z_red, HeightMap(z_a_values, spacing, valid)
 
 
-def spectral_correction(normals_by_band, spacing, *, segmentation: WrinkleSegmentation | None = None, method=DEFAULT_METHOD,
+def spectral_correction(normals_by_band, spacing, *, segmentation: WrinkleSegmentation | None = None, method=DEFAULT_CORRECTION_METHOD,
                         integrator=DEFAULT_INTEGRATOR, mask=None, **segmentation_options) -> CorrectionResult:
     """Run the paper's method on per-band normals.
 

@@ -38,6 +38,8 @@ DEFAULT_Q = 80.0  # %
 
 DEFAULT_SCHEDULER_TIMEOUT_S = 10.0  # batch: seconds to wait for a Dask scheduler
 
+DEFAULT_SKIN_OPTICS = "default-v1"  # optics: the simulator's profile (the parameters before profiles existed)
+
 HEIGHT_MAP_SUFFIXES = (".x3p", ".sdf", ".gwy", ".tif", ".tiff", ".npy")  # formats: height maps that can be read
 
 CALIBRATION_TARGETS = ("chrome-sphere", "matte-sphere")  # synth: targets for 'calibrate lights'

@@ -303,7 +303,6 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
 
 
 INTEGRATORS = dict(zip(INTEGRATOR_NAMES, (dct_poisson, frankot_chellappa, masked_least_squares)))
-AUTO = AUTO_INTEGRATOR
 AUTO_HOLE_FRACTION = 0.01  # auto: up to 1% of invalid pixels, in holes of at most
 AUTO_HOLE_PIXELS = 9  # 9 pixels each, are bridged and integrated by DCT
 
@@ -331,8 +330,8 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
         masked), else ``least-squares`` over the valid pixels (exact for any mask, slower). Or ``dct-poisson``, ``frankot-chellappa``,
         ``least-squares`` by name.
     """
-    if method != AUTO and method not in INTEGRATORS:
-        raise SkinTopoError(f"unknown integrator {method!r}; choose from {[AUTO, *sorted(INTEGRATORS)]}")
+    if method != AUTO_INTEGRATOR and method not in INTEGRATORS:
+        raise SkinTopoError(f"unknown integrator {method!r}; choose from {[AUTO_INTEGRATOR, *sorted(INTEGRATORS)]}")
     p = np.asarray(p, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64)
     valid = np.isfinite(p) & np.isfinite(q)
@@ -341,7 +340,7 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
         if mask.shape != p.shape:
             raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {p.shape}")
         valid &= mask
-    if method == AUTO:
+    if method == AUTO_INTEGRATOR:
         if valid.all():
             method = "dct-poisson"
         elif valid.mean() >= 1 - AUTO_HOLE_FRACTION and _largest_hole(valid) <= AUTO_HOLE_PIXELS:

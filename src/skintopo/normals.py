@@ -38,7 +38,6 @@ from skintopo._linalg import solve_symmetric_3x3
 from skintopo.errors import SkinTopoError
 
 
-
 @dataclass(frozen=True, eq=False)
 class PhotometricStereoResult:
     """Output of :func:`photometric_stereo`.

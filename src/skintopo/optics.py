@@ -53,6 +53,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.fft
 
+from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.errors import SkinTopoError
 
 BANDS = ("red", "green", "blue")
@@ -179,7 +180,7 @@ class SkinOptics:
 
 # --- default-v1: the parameters used before profiles existed --------------------------------
 DEFAULT_V1 = SkinOptics(
-    name="default-v1",
+    name=DEFAULT_SKIN_OPTICS,
     albedo={
         "light": {"red": 0.60, "green": 0.41, "blue": 0.33},
         "dark": {"red": 0.42, "green": 0.22, "blue": 0.13},

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skintopo.correction import spectral_correction
+from skintopo.defaults import DEFAULT_SKIN_OPTICS, DEFAULT_SOLVER
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
@@ -42,7 +43,7 @@ SUBJECTS = (
 COLUMNS = ("red", "green", "blue", "white", "algorithm", "algorithm-feathered")
 
 
-def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0, optics="default-v1", solver="least-squares"):
+def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0, optics=DEFAULT_SKIN_OPTICS, solver=DEFAULT_SOLVER):
     """Simulate, reconstruct, correct and evaluate one subject. Returns a dict.
 
     ``optics`` is a skin-optics profile or its name (:mod:`skintopo.optics`); ``solver``
@@ -99,7 +100,7 @@ def _figures(folder, result):
     (folder / "figure5_algorithm_vs_truth.png").write_bytes(base64.b64decode(figure5))
 
 
-def paper_tables(folder, *, size_px=256, pixel_um=20.0, optics="default-v1", progress=None):
+def paper_tables(folder, *, size_px=256, pixel_um=20.0, optics=DEFAULT_SKIN_OPTICS, progress=None):
     """Run all subjects and write Table 1, Table 2, the wrinkle-depth table, the figures and
     ``optics.json`` (the skin-optics profile, with its sources) into ``folder``. Returns the
     per-subject results and the tables as Markdown."""

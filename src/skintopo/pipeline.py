@@ -21,10 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from skintopo.defaults import AUTO_HEIGHT, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
-from skintopo.acquisition import BANDS, DEFAULT_SATURATION, load_acquisition
-from skintopo.correction import METHODS as CORRECTION_METHODS
+from skintopo.acquisition import DEFAULT_SATURATION, load_acquisition
 from skintopo.correction import REQUIRED_BANDS, CorrectionResult, spectral_correction
+from skintopo.defaults import AUTO_HEIGHT, CORRECTION_METHODS, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
@@ -42,7 +41,6 @@ from skintopo.segmentation import (
 )
 from skintopo.texture import DEFAULT_P, DEFAULT_Q, finite_or_none, measure_texture
 from skintopo.wrinkles import WrinkleMeasures, measure_wrinkles
-
 
 
 @dataclass(frozen=True)
@@ -224,9 +222,10 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:
-        kernels = options.height.physics_kernels and optics_profile(options.height.physics_kernels).scattering
+        name = options.height.physics_kernels
+        kernels = optics_profile(name).scattering if name is not None else None
         physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
-                                 acquisition.pixel_um, mask=acquisition.mask, kernels=kernels or None,
+                                 acquisition.pixel_um, mask=acquisition.mask, kernels=kernels,
                                  integrator=options.reconstruction.integrator, solver=options.reconstruction.solver)
         return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
                                  None, physics)
@@ -287,8 +286,9 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
               "height": made.description}
     if made.physics is not None:
         source["physics"] = made.physics.as_dict()  # kernels, highlight lobe, convergence: kept with the result
-        if made.physics.convergence_note() and on_note is not None:
-            on_note(made.physics.convergence_note())
+        note = made.physics.convergence_note()
+        if note and on_note is not None:
+            on_note(note)
     return measure_height(made.height, options, albedo=made.albedo, source=source)
 
 

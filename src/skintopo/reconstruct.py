@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skintopo.defaults import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES, SPECULAR_FREE
 from skintopo.acquisition import Acquisition
+from skintopo.defaults import DEFAULT_HIGHLIGHTS, HIGHLIGHT_MODES, SPECULAR_FREE
 from skintopo.height import DEFAULT_INTEGRATOR, integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.errors import SkinTopoError
@@ -35,8 +35,6 @@ class BandReconstruction:
     height: HeightMap
     seconds_normals: float
     seconds_integration: float
-
-
 
 
 def rgb_share_lights(acquisition: Acquisition):

@@ -48,11 +48,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skintopo.acquisition.capture import BANDS, DEFAULT_SATURATION, MANIFEST_NAME, Acquisition, BandImages
+from skintopo.acquisition.capture import BANDS, MANIFEST_NAME, Acquisition, BandImages
 from skintopo.acquisition.diligent import load_diligent
 from skintopo.acquisition.images import RAW_SUFFIXES, read_image
 from skintopo.lights import check_light_directions
 from skintopo.acquisition.manifest import load_manifest, write_acquisition
+from skintopo.defaults import DEFAULT_SATURATION
 from skintopo.errors import AcquisitionError
 
 __all__ = ["BANDS", "DEFAULT_SATURATION", "MANIFEST_NAME", "RAW_SUFFIXES", "Acquisition", "BandImages", "check_light_directions",

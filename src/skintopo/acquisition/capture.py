@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skintopo.defaults import BANDS, DEFAULT_SATURATION
+from skintopo.defaults import BANDS
 from skintopo.errors import AcquisitionError
 
 
@@ -21,8 +21,6 @@ FORMAT_NAME = "skintopo-acquisition"
 FORMAT_VERSION = 1
 
 
-
-
 DEFAULT_WAVELENGTH_NM = {"red": 625.0, "green": 523.0, "blue": 462.0, "white": None}
 
 
@@ -30,8 +28,6 @@ CHANNEL_INDEX = {"red": 0, "green": 1, "blue": 2}
 
 
 CHANNELS = ("red", "green", "blue", "mean")
-
-
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
+from skintopo.defaults import DEFAULT_SATURATION
 from skintopo.errors import AcquisitionError, SkinTopoError
 from skintopo.formats import fsync_path, write_png
 from skintopo.acquisition.capture import (
     BANDS,
     CHANNEL_INDEX,
     CHANNELS,
-    DEFAULT_SATURATION,
     DEFAULT_WAVELENGTH_NM,
     FORMAT_NAME,
     FORMAT_VERSION,

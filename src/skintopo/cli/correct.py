@@ -40,8 +40,9 @@ def run(args):
             write_json(staging / "physics.json", made.physics.as_dict())
         summary["seconds_total"] = time.perf_counter() - started
         write_json(staging / "summary.json", summary)
-    if made.physics is not None and made.physics.convergence_note():
-        shared.say(args, f"warning: {made.physics.convergence_note()}; see physics.json")
+    note = made.physics.convergence_note() if made.physics is not None else None
+    if note:
+        shared.say(args, f"warning: {note}; see physics.json")
     shared.say(args, f"{segmentation.count} wrinkle(s) segmented; height: {made.description}, in {Path(args.out).resolve() / 'height.x3p'}")
     return 0
 

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from skintopo.cli import options as shared
+from skintopo.defaults import DEFAULT_SKIN_OPTICS
 
 
 def run(args):
@@ -27,7 +28,7 @@ def add_parser(commands):
     tables.add_argument("-o", "--out", type=Path, required=True, help="output folder (tables as CSV and Markdown, figures as PNG)")
     tables.add_argument("--size", type=shared.size, default=256, help="field size in pixels (default 256)")
     tables.add_argument("--pixel-um", type=shared.positive_float, default=20.0, help="pixel size of the simulated fields in micrometres (default 20)")
-    tables.add_argument("--optics", default="default-v1", metavar="PROFILE",
+    tables.add_argument("--optics", default=DEFAULT_SKIN_OPTICS, metavar="PROFILE",
                         help="skin-optics profile of the simulated subjects: default-v1 (default), literature, paper-calibrated")
     shared.add_output_switches(tables)
     tables.set_defaults(handler=run)

@@ -8,7 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from skintopo.cli import options as shared
-from skintopo.defaults import CALIBRATION_TARGETS
+from skintopo.defaults import CALIBRATION_TARGETS, DEFAULT_SKIN_OPTICS
 from skintopo.errors import SkinTopoError
 
 
@@ -85,7 +85,7 @@ def add_parser(commands):
     synth.add_argument("-o", "--out", type=Path, required=True, help="output acquisition folder")
     synth.add_argument("--preset", default="forehead-moderate", help="flat-microrelief, forehead-low, forehead-moderate (default), forehead-high")
     synth.add_argument("--skin", choices=["light", "dark"], default="light", help="albedo preset (default light)")
-    synth.add_argument("--optics", default="default-v1", metavar="PROFILE",
+    synth.add_argument("--optics", default=DEFAULT_SKIN_OPTICS, metavar="PROFILE",
                        help="skin-optics profile (albedo, subsurface scattering, surface reflection): default-v1 (default), "
                        "literature, paper-calibrated; see the method docs")
     synth.add_argument("--size", type=shared.size, default=256, help="field size in pixels (square, default 256)")

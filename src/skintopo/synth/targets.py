@@ -31,7 +31,10 @@ MATTE_ALBEDO = 0.7
 
 
 def sphere_normals_of(shape, centre_xy, radius):
-    """Unit normals (rows, columns, 3) of a sphere seen from above; NaN outside it."""
+    """Unit normals (rows, columns, 3) of a sphere seen from above; NaN outside it.
+
+    Written here rather than taken from :func:`skintopo.calibration.sphere_normals` on
+    purpose: these targets test that code, so they must not share its geometry."""
     rows, columns = np.indices(shape, dtype=float)
     x, y = (columns - centre_xy[0]) / radius, -(rows - centre_xy[1]) / radius
     z2 = 1 - x**2 - y**2

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from skintopo.defaults import DEFAULT_LEVEL_ORDER
 from skintopo.errors import SkinTopoError
 from skintopo.filters import level
 from skintopo.heightmap import HeightMap
@@ -53,7 +54,7 @@ class Parameter:
     reference: str
 
 
-def measure_texture(height: HeightMap, *, level_order=1, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS, return_fractal=False):
+def measure_texture(height: HeightMap, *, level_order=DEFAULT_LEVEL_ORDER, p=DEFAULT_P, q=DEFAULT_Q, fractal_methods=FRACTAL_METHODS, return_fractal=False):
     """All areal parameters and fractal dimensions of a height map, in one call.
 
     Parameters
