@@ -124,15 +124,14 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     myy = syy - 2 * y * sy + y * y * s0
     mxy = sxy - x * sy - y * sx + x * y * s0
     mxz, myz = sxz - x * sz, syz - y * sz
-    system = np.stack([s0, mx, my, mxx, mxy, myy], axis=-1).reshape(-1, 6)
-    solution, det = solve_symmetric_3x3(system, np.stack([sz, mxz, myz], axis=-1).reshape(-1, 3))
+    solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, mx, my, mxx, mxy, myy)], [c.ravel() for c in (sz, mxz, myz)])
     with np.errstate(invalid="ignore", divide="ignore"):
         zeroth = (sz / s0).ravel()
         # Conditioning of the plane fit: det against (s0 * spread^2)^... compare with the
         # determinant of a full symmetric window, s0 * (s0 sigma_x^2) * (s0 sigma_y^2).
         full = s0.ravel() ** 3 * sigmas[0] ** 2 * sigmas[1] ** 2
         good = det > 1e-3 * full
-    low = np.where(good, solution[:, 0], zeroth).reshape(rows, columns)
+    low = np.where(good, solution[0], zeroth).reshape(rows, columns)
     reach = s0 > 1e-6 * s0.max()
     return np.where(reach, low, np.nan)
 
@@ -191,6 +190,30 @@ def polynomial_form(z, spacing, order=1, mask=None):
     for (i, j), c in zip(exponents, coefficients):
         table[j, i] = c
     return v_powers[:, : order + 1] @ table @ u_powers[:, : order + 1].T
+
+
+def sphere_fit(height: HeightMap):
+    """Least-squares sphere through a height map's valid points: (radius, centre) in um.
+
+    The algebraic fit (Kasa 1976): |p|^2 = 2 c . p + k is linear in the centre c and
+    k = R^2 - |c|^2, solved by least squares over the points p = (x, y, z) (x right, y up,
+    from the map's centre). Unbiased for noise small against the radius (skin: um against
+    mm). The radius is the form's radius of curvature (a forehead's is about 80 mm).
+    """
+    rows, columns = height.shape
+    dy, dx = height.spacing
+    valid = height.mask & np.isfinite(height.z)
+    if valid.sum() < 4:
+        raise SkinTopoError(f"a sphere needs at least 4 valid points, got {int(valid.sum())}")
+    y, x = np.nonzero(valid)
+    points = np.stack([(x - (columns - 1) / 2) * dx, ((rows - 1) / 2 - y) * dy, height.z[valid]], axis=1)
+    offset = points.mean(axis=0)  # conditioning: centre the points first
+    local = points - offset
+    system = np.column_stack([2 * local, np.ones(len(local))])
+    solution = np.linalg.lstsq(system, np.sum(local**2, axis=1), rcond=None)[0]
+    centre = solution[:3]
+    radius = float(np.sqrt(solution[3] + centre @ centre))
+    return radius, centre + offset
 
 
 def block_mean(image, factor):

@@ -88,11 +88,11 @@ def _fit(intensity, usable, lights):
     if partial.any():
         weights = usable[:, partial].T.astype(np.float64)  # (k, m)
         outer = np.stack([lights[:, i] * lights[:, j] for i, j in _UPPER], axis=1)  # (m, 6)
-        solution, det = solve_symmetric_3x3(weights @ outer, (weights * intensity[:, partial].T) @ lights)
+        solution, det = solve_symmetric_3x3((weights @ outer).T, ((weights * intensity[:, partial].T) @ lights).T)
         # Remaining lights must still span 3-D: det(S^T W S) against its scale (trace/3)^3.
         scale = ((weights @ outer[:, [0, 3, 5]]).sum(axis=1) / 3) ** 3
-        solution[~(np.abs(det) > 1e-6 * scale)] = np.nan
-        g[:, partial] = solution.T
+        solution[:, ~(np.abs(det) > 1e-6 * scale)] = np.nan
+        g[:, partial] = solution
     return g, count
 
 

@@ -123,20 +123,46 @@ def fresnel_dielectric(cos_incidence, eta):
     return 0.5 * a**2 * (1 + b**2)
 
 
-def torrance_sparrow(normals, light, *, roughness=0.35, eta=1.38):
-    """Specular intensity pi F D G / (4 n.v) for unit light and view v = (0, 0, 1)."""
+def torrance_sparrow(normals, light, *, roughness=0.35, eta=1.38, view=(0.0, 0.0, 1.0)):
+    """Specular intensity pi F D G / (4 n.v) for unit light and view vectors (one vector, or
+    one per pixel: (rows, columns, 3); the orthographic camera's view is (0, 0, 1))."""
     light = np.asarray(light, dtype=float)
-    view = np.array([0.0, 0.0, 1.0])
-    half = (light + view) / np.linalg.norm(light + view)
-    n_dot_h = np.clip(normals @ half, 1e-6, 1.0)
-    n_dot_v = np.clip(normals[..., 2], 1e-6, 1.0)
-    n_dot_l = normals @ light
-    v_dot_h = float(view @ half)
+    view = np.asarray(view, dtype=float)
+    half = light + view
+    half = half / np.linalg.norm(half, axis=-1, keepdims=True)
+    n_dot_h = np.clip(np.sum(normals * half, axis=-1), 1e-6, 1.0)
+    n_dot_v = np.clip(np.sum(normals * view, axis=-1), 1e-6, 1.0)
+    n_dot_l = np.sum(normals * light, axis=-1)
+    v_dot_h = np.sum(view * half, axis=-1)
     tan2 = (1 - n_dot_h**2) / n_dot_h**2
     facets = np.exp(-tan2 / roughness**2) / (np.pi * roughness**2 * n_dot_h**4)
     masking = np.minimum(1.0, np.minimum(2 * n_dot_h * n_dot_v / v_dot_h, 2 * n_dot_h * np.maximum(n_dot_l, 0) / v_dot_h))
     specular = np.pi * fresnel_dielectric(v_dot_h, eta) * facets * masking / (4 * n_dot_v)
     return np.where(n_dot_l > 0, specular, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class NearLighting:
+    """Lighting by point LEDs seen by a perspective camera, per point of the height field
+    (from :func:`skintopo.synth.nearfield.near_lighting`).
+
+    Attributes
+    ----------
+    vectors : ndarray (m, rows, columns, 3)
+        s(P) of each LED at unit intensity (:meth:`skintopo.device.Led.light_vectors`).
+    intensities : dict of str to ndarray (m,)
+        Each LED's relative intensity per band.
+    view : ndarray (rows, columns, 3)
+        Unit vector from each point to the camera's centre of projection.
+    shadow_directions : ndarray (m, 3)
+        The direction from the field centre to each LED: cast shadows are marched along it
+        (an approximation: the true direction changes across the field).
+    """
+
+    vectors: np.ndarray
+    intensities: dict
+    view: np.ndarray
+    shadow_directions: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -164,15 +190,18 @@ def _albedo_maps(shape, pixel, base, vary, rng):
     return {band: value * variation for band, value in base.items()}
 
 
-def render_bands(height, normals, settings: RenderSettings, rng, progress=iter):
-    """Linear images per band, before the sensor: dict band -> (m, rows, columns).
+def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, *, near: NearLighting | None = None):
+    """Linear images per band, before the sensor: dict band -> (m, rows, columns), on the
+    height field's grid.
 
     Also returns the render diagnostics (iterations, operator size). ``progress`` wraps the
-    iteration over the three bands (e.g. a progress bar).
+    iteration over the three bands (e.g. a progress bar). With ``near``, the lights are point
+    LEDs and the view is a perspective camera's (``settings.lights`` is then not used); the
+    images are still on the height field's grid (:mod:`skintopo.synth.nearfield` projects
+    them into the camera).
     """
     z = np.asarray(height.z, dtype=float)
     pixel = height.spacing[1]
-    lights = np.asarray(settings.lights, dtype=float)
     effects = settings.effects
     optics = settings.optics
     albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
@@ -182,21 +211,31 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter):
     if effects.interreflection:
         operator = interreflection_operator(z, normals, pixel, radius_um=settings.interreflection_radius_um, n_azimuth=settings.n_azimuth)
         info["interreflection_nonzeros"] = int(operator.nnz)
-    shading = np.einsum("rci,mi->mrc", normals, lights)
-    direct = np.maximum(shading, 0.0)
+    if near is None:
+        lights = np.asarray(settings.lights, dtype=float)
+        shadow_directions = lights
+        direct = np.maximum(np.einsum("rci,mi->mrc", normals, lights), 0.0)
+        unit_lights, view = lights, np.array([0.0, 0.0, 1.0])
+    else:
+        shadow_directions = near.shadow_directions
+        direct = np.maximum(np.einsum("rci,mrci->mrc", normals, near.vectors), 0.0)
+        unit_lights = near.vectors / np.linalg.norm(near.vectors, axis=-1, keepdims=True)
+        view = near.view
     if effects.shadows:
-        direct *= ~np.stack([cast_shadow(z, pixel, light) for light in lights])
+        direct *= ~np.stack([cast_shadow(z, pixel, light) for light in shadow_directions])
     images = {}
     for band in progress(("red", "green", "blue")):
         transport = optics.scattering[band].operator(z.shape, pixel) if effects.translucency else None
+        scale = np.ones(len(direct)) if near is None else np.asarray(near.intensities[band], dtype=float)
         stack = []
-        for i, light in enumerate(lights):
-            radiosity, iterations, _ = solve_radiosity(direct[i], albedo[band], operator, transport=transport, bounces=effects.bounces)
+        for i in range(len(direct)):
+            radiosity, iterations, _ = solve_radiosity(scale[i] * direct[i], albedo[band], operator, transport=transport, bounces=effects.bounces)
             info["iterations"][f"{band}_{i}"] = iterations
             if effects.specular:
                 lit = direct[i] > 0
-                lobe = torrance_sparrow(normals, light, roughness=roughness, eta=optics.fresnel_index[band])
-                radiosity = radiosity + settings.specular_strength * optics.specular_scale * lit * lobe
+                irradiance = 1.0 if near is None else scale[i] * np.linalg.norm(near.vectors[i], axis=-1)
+                lobe = torrance_sparrow(normals, unit_lights[i], roughness=roughness, eta=optics.fresnel_index[band], view=view)
+                radiosity = radiosity + settings.specular_strength * optics.specular_scale * lit * irradiance * lobe
             stack.append(radiosity)
         images[band] = np.stack(stack)
     return images, info

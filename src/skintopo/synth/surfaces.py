@@ -75,6 +75,7 @@ class SurfaceSpec:
     hurst: float = 0.7
     roughness_cutoff_px: float = 3.0
     form_radius_mm: float | None = 80.0
+    form_shape: str = "cylinder"  # "cylinder": -x^2 / 2R (forehead, across); "sphere": exact sphere of radius R
     microrelief: bool = True
     shift_um: tuple = (0.0, 0.0)  # (x, y): the field sees the same skin displaced by this (a later visit)
 
@@ -267,6 +268,12 @@ def validate_spec(spec: SurfaceSpec):
             problems.append(f"roughness RMS must be >= 0 and the Hurst exponent in (0, 1), got {spec.roughness_rms_um}, {spec.hurst}")
     if spec.form_radius_mm is not None and spec.form_radius_mm <= 0:
         problems.append(f"form radius must be positive, got {spec.form_radius_mm} mm")
+    if spec.form_shape not in ("cylinder", "sphere"):
+        problems.append(f"form shape must be 'cylinder' or 'sphere', got {spec.form_shape!r}")
+    elif spec.form_shape == "sphere" and spec.form_radius_mm is not None and spec.form_radius_mm > 0:
+        corner_um = np.hypot(rows, columns) * spec.pixel_um / 2 + np.hypot(*spec.shift_um)
+        if corner_um >= spec.form_radius_mm * 1000:
+            problems.append(f"the field ({corner_um / 1000:.1f} mm to its corner) does not fit on a sphere of radius {spec.form_radius_mm} mm")
     if problems:
         raise SkinTopoError("invalid surface: " + "; ".join(problems))
 
@@ -301,7 +308,13 @@ def make_surface(spec: SurfaceSpec, seed=0) -> SkinSurface:
         take = (fraction >= 0.5) & (fraction > best_fraction)
         labels[take] = index + 1
         best_fraction = np.maximum(best_fraction, fraction)
-    if spec.form_radius_mm is not None:
+    if spec.form_radius_mm is not None and spec.form_shape == "sphere":
+        radius = spec.form_radius_mm * 1000.0
+        cap = np.sqrt(radius**2 - x**2 - y**2)
+        z += cap - radius
+        p += -x / cap
+        q += -y / cap
+    elif spec.form_radius_mm is not None:
         radius = spec.form_radius_mm * 1000.0
         z += -(x**2) / (2 * radius)
         p += -x / radius

@@ -1,0 +1,124 @@
+"""Benchmark: the real device (issue 22). A paper-like device (skintopo.device.paper_device: 4
+LEDs on a 60 mm ring 80 mm above the skin, 1000 x 1000 camera, 65 x 65 mm at 150 mm) looks
+at a forehead with wrinkles on a sphere of 80 mm radius. Three reconstructions of the red
+band, scored against the raw geometry:
+
+- ideal: the same surface rendered under distant lights (the directions from the field centre
+  to the LEDs) by an orthographic camera, reconstructed by distant-light photometric stereo;
+- near-field: the device's images through :func:`skintopo.nearfield.near_field_photometric_stereo`;
+- distant solver: the device's images through distant-light photometric stereo (what skintopo
+  did before), to show how much it bends.
+
+Scores: RMS height error after removing its mean ("raw"), and after removing its best-fitting
+quadratic ("after form": the error left in the wrinkle band, what form removal would not take
+away; the truth itself is not processed); the forehead radius from a least-squares sphere
+(:func:`skintopo.filters.sphere_fit`) of the reconstruction; the wrinkles' max depth.
+Speed: 12 images (3 bands x 4 LEDs) of 1000 x 1000 through the near-field solver against the
+distant-light one (normals + integration per band).
+
+Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin]``.
+Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS.json.
+"""
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+from _results import write_result  # bench/_results.py (scripts run from bench/)
+
+from skintopo.device import paper_device
+from skintopo.evaluation import wrinkle_max_depths
+from skintopo.filters import polynomial_form, sphere_fit
+from skintopo.height import integrate_normals
+from skintopo.heightmap import HeightMap
+from skintopo.nearfield import near_field_photometric_stereo
+from skintopo.normals import photometric_stereo
+from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
+from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, truth_on_camera_grid
+from skintopo.synth.surfaces import SkinSurface
+
+RADIUS_MM = 80.0
+EFFECTS = {"lambertian": Effects.none(), "skin": Effects(interreflection=False)}
+
+
+def device_scene(size, seed=1):
+    device = paper_device(size_px=size)
+    spec = replace(preset_spec("forehead-moderate", size_px=size, pixel_um=device.pixel_um), form_shape="sphere",
+                   form_radius_mm=RADIUS_MM, furrow_width_um=3 * device.pixel_um, plate_um=20 * device.pixel_um)
+    return device, device_surface(spec, device, seed=seed)
+
+
+def scores(height: HeightMap, truth: HeightMap, labels):
+    error = height.z - truth.z
+    valid = np.isfinite(error) & height.mask
+    error = np.where(valid, error, np.nan)
+    form = polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid)
+    radius_um, _ = sphere_fit(height)
+    found = wrinkle_max_depths(HeightMap(np.where(valid, height.z, np.nan), truth.spacing, valid), labels)
+    true = wrinkle_max_depths(truth, labels)
+    return {
+        "rms_raw_um": float(np.sqrt(np.nanmean((error - np.nanmean(error)) ** 2))),
+        "rms_after_form_um": float(np.sqrt(np.nanmean((error - form)[valid] ** 2))),
+        "mean_offset_um": float(np.nanmean(error)),
+        "radius_mm": radius_um / 1000,
+        "radius_error_percent": 100 * (radius_um / 1000 / RADIUS_MM - 1),
+        "wrinkle_max_depth_um": [round(float(v), 2) for v in found],
+        "true_wrinkle_max_depth_um": [round(float(v), 2) for v in true],
+        "valid_fraction": float(valid.mean()),
+    }
+
+
+def distant_reconstruction(images, lights, spacing):
+    stereo = photometric_stereo(images, lights)
+    return integrate_normals(stereo.normals, spacing)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--size", type=int, default=1000, help="camera pixels across (the field stays 65 mm)")
+    parser.add_argument("--effects", choices=sorted(EFFECTS), default="lambertian",
+                        help="lambertian: diffuse only; skin: + translucency, highlights, cast shadows (no interreflection)")
+    args = parser.parse_args()
+    device, surface = device_scene(args.size)
+    settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
+    start = time.perf_counter()
+    bands, _ = simulate_device_acquisition(surface, device, settings, seed=1)
+    seconds_render = time.perf_counter() - start
+    truth, labels = truth_on_camera_grid(surface, device)
+    rows = slice((surface.height.shape[0] - truth.shape[0]) // 2, (surface.height.shape[0] - truth.shape[0]) // 2 + truth.shape[0])
+    cols = slice((surface.height.shape[1] - truth.shape[1]) // 2, (surface.height.shape[1] - truth.shape[1]) // 2 + truth.shape[1])
+    window = (rows, cols)
+    crop = SkinSurface(truth, surface.p[window], surface.q[window], surface.normals[window], labels, surface.wrinkle_depth[window],
+                       surface.spec)
+    lights = device.central_directions()
+    ideal_bands, _ = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
+
+    result = {"device": device.describe(), "effects": args.effects, "size_px": args.size, "pixel_um": device.pixel_um,
+              "forehead_radius_mm": RADIUS_MM, "seconds_render": seconds_render, "band": "red"}
+    result["ideal"] = scores(distant_reconstruction(ideal_bands["red"][0], lights, truth.spacing), truth, labels)
+    near = near_field_photometric_stereo(bands["red"], device, "red")
+    result["near_field"] = scores(near.height, truth, labels)
+    result["near_field"]["iterations"] = near.options["iterations"]
+    result["near_field"]["changes_um"] = near.changes_um
+    result["near_field"]["binned"] = near.options.get("binned")
+    result["distant_solver"] = scores(distant_reconstruction(bands["red"], lights, truth.spacing), truth, labels)
+    result["difference_after_form_um"] = result["near_field"]["rms_after_form_um"] - result["ideal"]["rms_after_form_um"]
+
+    # speed: 12 images, three bands
+    start = time.perf_counter()
+    for band in ("red", "green", "blue"):
+        distant_reconstruction(bands[band], lights, truth.spacing)
+    seconds_distant = time.perf_counter() - start
+    start = time.perf_counter()
+    for band in ("red", "green", "blue"):
+        near_field_photometric_stereo(bands[band], device, band)
+    seconds_near = time.perf_counter() - start
+    result["speed"] = {"images": 12, "seconds_distant": seconds_distant, "seconds_near_field": seconds_near,
+                       "ratio": seconds_near / seconds_distant}
+    name = "nearfield" if (args.size, args.effects) == (1000, "lambertian") else f"nearfield-{args.size}-{args.effects}"
+    write_result(name, result)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,353 @@
+"""Near-field photometric stereo: point LEDs and a perspective camera (:mod:`skintopo.device`).
+
+Under the device's LEDs a Lambertian point P of albedo rho and unit normal n shows
+I_i = rho n . s_i(P), with s_i(P) the LED's light vector at P (Quéau et al. 2018, eq. 4;
+see :mod:`skintopo.device`). s_i depends on P, hence on the unknown depth, so the solver
+alternates (Quéau et al. 2018, section 4; Logothetis et al. 2017 do the same with a joint
+variational solver):
+
+1. points P = d (a, b, -1) on each pixel's ray from the current depth d (mm);
+2. per pixel, least squares over the LEDs with that pixel's own light matrix S(P):
+   g = (S^T W S)^-1 S^T W I, rho = |g|, n = g / |g| (W: the shadow rule of
+   :mod:`skintopo.normals`, applied to I_i / |s_i|);
+3. normals -> depth by perspective integration: with P = d w, w = (a, b, -1), the
+   tangents dP/du = d_u w + d w_u must be normal to n, so
+
+       d(log d)/du = -(n . w_u) / (n . w),    d(log d)/dv = -(n . w_v) / (n . w),
+
+   integrated by the project's integrator (:func:`skintopo.height.integrate_slopes`) on the
+   pixel grid; w_u, w_v are differentiated numerically, which includes lens distortion;
+4. the constant of integration (a global scale of the shape, which perspective integration
+   cannot see) by photometry: the depth scale k that minimises the residual of step 2 over a
+   subsample of pixels (the 1/r^2 fall-off and the LEDs' changing directions make a wrong
+   distance visible), or by the working distance (``scale="working-distance"``: the median
+   depth is the working distance);
+
+until the depth changes by less than ``tolerance_um`` (default 0.05 um), starting from the
+plane at the working distance.
+
+The result is resampled to a regular grid in the skin plane (:func:`surface_grid`): the
+device's pixel footprint at the working distance, centred on the optical axis, heights in
+micrometres toward the camera (h = (D - d) 1000), so every measure of the project applies.
+
+Flat-field images for a device acquisition must correct the camera only (vignetting, pixel
+gain), not the LEDs' fall-off: the device model holds that. Cast shadows and highlights
+are handled by the shadow rule; interreflection and subsurface scattering are not modelled
+here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.ndimage
+import scipy.optimize
+
+from skintopo._linalg import solve_symmetric_3x3
+from skintopo.defaults import AUTO_INTEGRATOR, DEFAULT_SHADOW_FRACTION
+from skintopo.device import Device
+from skintopo.errors import SkinTopoError
+from skintopo.filters import block_mean
+from skintopo.height import integrate_slopes
+from skintopo.heightmap import HeightMap
+
+SCALES = ("photometric", "working-distance")
+SCALE_SAMPLE_STEP = 2  # the photometric scale is fitted on every 2nd pixel of every 2nd row (of the binned images)
+CHUNK = 1 << 15  # pixels per block of the per-pixel solves
+COARSE_PIXELS = 256  # the alternation first converges on images binned to about this many pixels across
+DEFAULT_TOLERANCE_UM = 0.05
+SCALE_SETTLED = 1e-4  # the photometric scale is kept once it changes by less than this between iterations
+_UPPER = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+
+
+@dataclass(frozen=True, eq=False)
+class NearFieldResult:
+    """Output of :func:`near_field_photometric_stereo`.
+
+    Attributes
+    ----------
+    height : HeightMap
+        Heights in micrometres (toward the camera, 0 at the working distance) on the regular
+        skin-plane grid of :func:`surface_grid`.
+    depth_mm : ndarray (rows, columns)
+        Depth of each camera pixel's point along the optical axis, mm; NaN where invalid.
+    normals, albedo : ndarray
+        Per camera pixel (camera frame); NaN where invalid.
+    valid : ndarray of bool
+        Camera pixels with at least 3 usable LEDs.
+    changes_um : list of float
+        Largest depth change per iteration (micrometres): the convergence record.
+    scales : list of float
+        The depth scale chosen at each iteration (1 = unchanged).
+    seconds : float
+    options : dict
+    """
+
+    height: HeightMap
+    depth_mm: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    valid: np.ndarray
+    changes_um: list
+    scales: list
+    seconds: float
+    options: dict = field(default_factory=dict)
+
+    @property
+    def converged(self):
+        """True when the last depth change was below the tolerance."""
+        return bool(self.changes_um) and self.changes_um[-1] < self.options["tolerance_um"]
+
+
+def _light_matrices(device: Device, points, band):
+    """(m, 3, P) float32 light vectors of every LED at points (3, P), times D^2 (so that they
+    are about 1 in size: the normal equations stay far from float32's limits)."""
+    scale = np.float32(device.working_distance_mm**2)
+    return np.stack([led.light_vectors(points, band) * scale for led in device.leds])
+
+
+def _normals_at(intensity, rays, depth, device, band, shadow_fraction):
+    """:func:`per_pixel_photometric_stereo` with the LEDs' light vectors at the points
+    depth x rays (mm): g (3, P) and the relative residual (P,). Done in chunks of ``CHUNK``
+    pixels, so that the temporaries stay in the processor's cache (about 3x faster than
+    whole-image temporaries at 1000 x 1000, measured)."""
+    count = rays.shape[1]
+    g = np.empty((3, count), np.float32)
+    residual = np.empty(count, np.float32)
+    for start in range(0, count, CHUNK):
+        part = slice(start, start + CHUNK)
+        points = (depth[part] * rays[:, part]).astype(np.float32)
+        g[:, part], residual[part] = per_pixel_photometric_stereo(intensity[:, part], _light_matrices(device, points, band),
+                                                                  shadow_fraction=shadow_fraction)
+    return g, residual
+
+
+def _solve(lights, values, weights):
+    """g (3, P) from S^T W S g = S^T W I per pixel; NaN where fewer than 3 observations
+    remain or the remaining lights do not span 3-D (det below 1e-6 of (trace / 3)^3)."""
+    s = [lights[:, i] for i in range(3)]  # (m, P) each
+    ws = [weights * c for c in s]
+    upper = [np.einsum("mp,mp->p", ws[i], s[j]) for i, j in _UPPER]
+    rhs = [np.einsum("mp,mp->p", c, values) for c in ws]
+    g, det = solve_symmetric_3x3(upper, rhs)
+    trace = (upper[0] + upper[3] + upper[5]) / 3
+    g[:, ~((np.einsum("mp->p", weights) >= 3) & (np.abs(det) > 1e-6 * trace**3))] = np.nan
+    return g
+
+
+def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_SHADOW_FRACTION):
+    """Lambertian least squares with a light matrix per pixel.
+
+    Parameters
+    ----------
+    intensity : ndarray (m, P)
+        Observations (NaN: saturated, left out).
+    lights : ndarray (m, 3, P)
+        Each light's vector s_i at each pixel (direction times irradiance).
+    shadow_fraction : float
+        An observation is shadowed when I_i / |s_i| < f rho_0, rho_0 the smaller albedo of two
+        first fits (all observations; all but the brightest), as in :mod:`skintopo.normals`.
+
+    Returns
+    -------
+    g : ndarray (3, P)
+        rho n; NaN where fewer than 3 usable observations remain.
+    residual : ndarray (P,)
+        Sum of squared residuals over the usable observations divided by the sum of squared
+        observations (a relative misfit, independent of the albedo).
+    """
+    finite = np.isfinite(intensity)
+    values = np.where(finite, intensity, 0).astype(np.float32)
+    strength = np.sqrt(np.sum(lights * lights, axis=1))
+    normalised = values / np.maximum(strength, np.float32(1e-30))
+    weights = finite.astype(np.float32)
+    g_all = _solve(lights, values, weights)
+    brightest = np.argmax(np.where(finite, normalised, -np.inf), axis=0)
+    without = weights.copy()
+    without[brightest, np.arange(values.shape[1])] = 0
+    g_without = _solve(lights, values, without)
+    rho0 = np.fmin(np.sqrt(np.sum(g_all * g_all, axis=0)), np.sqrt(np.sum(g_without * g_without, axis=0)))
+    weights = (finite & ~(normalised < shadow_fraction * rho0)).astype(np.float32)
+    g = _solve(lights, values, weights)
+    predicted = np.sum(lights * g[None], axis=1)
+    residual = np.sum(weights * (values - predicted) ** 2, axis=0) / np.maximum(np.sum(weights * values * values, axis=0), 1e-30)
+    return g, residual
+
+
+def _rays(device: Device):
+    """w = (a, b, -1) per pixel and its derivatives along columns and rows, each (3, rows,
+    columns); analytic without lens distortion ((1/f, 0, 0) and (0, -1/f, 0), f in pixels),
+    else numerical."""
+    a, b = device.camera.rays()
+    w = np.stack([a, b, -np.ones_like(a)])
+    if any(device.camera.radial_distortion):
+        w_v, w_u = np.gradient(w, axis=(1, 2))
+        return w, w_u, w_v
+    step = 1 / device.camera.focal_length_px
+    return w, np.array([step, 0.0, 0.0])[:, None, None], np.array([0.0, -step, 0.0])[:, None, None]
+
+
+def surface_grid(device: Device):
+    """The regular skin-plane grid of a near-field result: (x, y) in mm per node, the
+    camera's size, spacing :attr:`Device.pixel_um`, centred on the optical axis."""
+    rows, columns = device.camera.size_px
+    step = device.pixel_um / 1000
+    x = (np.arange(columns) - (columns - 1) / 2) * step
+    y = ((rows - 1) / 2 - np.arange(rows)) * step
+    return np.broadcast_arrays(x[None, :], y[:, None])
+
+
+def resample_to_surface_grid(depth_mm, device: Device, iterations=12):
+    """Heights (um, toward the camera, 0 at the working distance) on :func:`surface_grid`
+    from per-pixel depths: each node (x, y) is found on the image by the fixed point
+    (column, row) = project(x, y, -d(column, row)); nodes outside the image or on invalid
+    pixels are masked."""
+    x, y = surface_grid(device)
+    valid = np.isfinite(depth_mm)
+    if not valid.any():
+        raise SkinTopoError("no valid pixel: nothing to resample")
+    nearest = scipy.ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+    filled = depth_mm[tuple(nearest)]
+    depth = np.full(x.shape, float(np.median(depth_mm[valid])))
+    for _ in range(iterations):
+        column, row = device.camera.project(np.stack([x, y, -depth]))
+        previous, depth = depth, scipy.ndimage.map_coordinates(filled, [row, column], order=1, mode="nearest")
+        if np.max(np.abs(depth - previous)) < 1e-7:  # mm
+            break
+    rows, columns = depth_mm.shape
+    inside = (row >= 0) & (row <= rows - 1) & (column >= 0) & (column <= columns - 1)
+    inside &= scipy.ndimage.map_coordinates(valid.astype(float), [row, column], order=1, mode="constant") > 0.999
+    z = (device.working_distance_mm - depth) * 1000
+    return HeightMap(np.where(inside, z, np.nan), device.pixel_um, inside)
+
+
+def near_field_photometric_stereo(images, device: Device, band, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION,
+                                  scale="photometric", tolerance_um=DEFAULT_TOLERANCE_UM, max_iterations=30,
+                                  integrator=AUTO_INTEGRATOR, full_resolution_passes=None):
+    """Normals, albedo and height from images taken under the device's LEDs (module notes).
+
+    The alternation first runs to convergence on images binned to about 256 pixels across
+    (the depth's effect on the light vectors is smooth), then at full resolution from that
+    depth, with its scale kept (the median depth of the binned solution).
+
+    Parameters
+    ----------
+    images : ndarray (m, rows, columns)
+        One image per LED, in the device's LED order, linear, flat-fielded for the camera
+        only; NaN where saturated.
+    device : Device
+    band : str
+        Which of the LEDs' per-band intensities applies.
+    mask : ndarray of bool, optional
+        Camera pixels to reconstruct (default: all).
+    scale : {"photometric", "working-distance"}
+        How the constant of integration is fixed (module notes).
+    tolerance_um, max_iterations
+        Stop when the largest depth change is below ``tolerance_um``.
+
+    Returns
+    -------
+    NearFieldResult
+    """
+    start = time.perf_counter()
+    images = np.asarray(images, dtype=np.float32)
+    m = len(device.leds)
+    shape = tuple(device.camera.size_px)
+    if images.ndim != 3 or images.shape[0] != m or images.shape[1:] != shape:
+        raise SkinTopoError(f"expected {m} images (one per LED) of {shape} pixels, got an array of shape {images.shape}")
+    if scale not in SCALES:
+        raise SkinTopoError(f"unknown scale {scale!r}; choose from {list(SCALES)}")
+    mask = np.ones(shape, bool) if mask is None else np.asarray(mask, dtype=bool)
+    if mask.shape != shape:
+        raise SkinTopoError(f"mask shape {mask.shape} differs from the camera's {shape}")
+    settings = dict(band=band, shadow_fraction=shadow_fraction, tolerance_um=tolerance_um, max_iterations=max_iterations,
+                    integrator=integrator)
+    options = {"scale": scale, **settings}
+    factor = max(1, min(shape) // COARSE_PIXELS)
+    depth = np.full(shape, device.working_distance_mm)
+    if factor > 1:
+        coarse_device = replace(device, camera=device.camera.binned(factor))
+        rows, columns = coarse_device.camera.size_px
+        crop = (slice(0, rows * factor), slice(0, columns * factor))
+        binned = np.stack([block_mean(image[crop], factor) for image in images]).astype(np.float32)
+        coarse_mask = block_mean(mask[crop].astype(float), factor) > 0.999
+        coarse_depth, _, _, coarse_changes, coarse_scales = _alternate(
+            binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **settings)
+        options["binned"] = {"factor": factor, "changes_um": coarse_changes, "scales": coarse_scales}
+        known = np.isfinite(coarse_depth)
+        if not known.any():
+            raise SkinTopoError("no pixel could be solved: check the images and the device's LED order")
+        nearest = scipy.ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+        v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
+        position = [(v - (factor - 1) / 2) / factor, (u - (factor - 1) / 2) / factor]
+        depth = scipy.ndimage.map_coordinates(coarse_depth[tuple(nearest)], position, order=1, mode="nearest")
+        scale = float(np.median(coarse_depth[known]))
+    if factor > 1 and full_resolution_passes is not None:
+        settings["max_iterations"] = full_resolution_passes
+    depth_map, g, valid, changes, scales = _alternate(images, device, mask, depth, scale, **settings)
+    options["iterations"] = len(changes)
+    albedo = np.full(shape, np.nan, dtype=np.float32)
+    normals = np.full((*shape, 3), np.nan, dtype=np.float32)
+    albedo[mask] = np.sqrt(np.sum(g * g, axis=0))
+    normals[mask] = (g / albedo[mask]).T
+    return NearFieldResult(resample_to_surface_grid(depth_map, device), depth_map, normals, albedo, valid, changes, scales,
+                           time.perf_counter() - start, options)
+
+
+def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator):
+    """The alternation of the module notes from an initial depth map (mm). ``scale`` is
+    ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
+    Returns (depth map, g (3, P), valid map, changes_um, scales)."""
+    shape = mask.shape
+    w, w_u, w_v = _rays(device)
+    rays = w[:, mask].astype(np.float32)
+    intensity = images[:, mask]
+    sample = np.zeros(shape, bool)
+    sample[::SCALE_SAMPLE_STEP, ::SCALE_SAMPLE_STEP] = True
+    sample = sample[mask]
+    depth = depth[mask].astype(np.float64)
+    changes, scales = [], []
+    g = None
+    for _ in range(max_iterations):
+        g, _ = _normals_at(intensity, rays, depth, device, band, shadow_fraction)
+        n = np.full((3, *shape), np.nan, dtype=np.float32)
+        n[:, mask] = g / np.sqrt(np.sum(g * g, axis=0))
+        along = np.sum(n * w, axis=0)
+        log_du = -np.sum(n * w_u, axis=0) / along
+        log_dv = -np.sum(n * w_v, axis=0) / along
+        # integrate_slopes works in x right, y up: p = d/dcolumn, q = -d/drow, on a unit grid
+        log_depth = integrate_slopes(log_du, -log_dv, 1.0, mask=mask, method=integrator).z[mask]
+        shape_only = np.exp(log_depth - np.nanmedian(log_depth))
+        if scale == "photometric":
+            factor = _photometric_scale(intensity[:, sample], rays[:, sample], shape_only[sample], device, band, shadow_fraction)
+            if scales and abs(factor / device.working_distance_mm - scales[-1]) < SCALE_SETTLED:
+                scale = factor  # settled: kept from here on, so that the search's own tolerance cannot stall convergence
+        elif scale == "working-distance":
+            factor = device.working_distance_mm
+        else:
+            factor = scale
+        scales.append(float(factor / device.working_distance_mm))
+        updated = factor * shape_only
+        change = float(np.nanmax(np.abs(updated - depth)) * 1000)
+        depth = np.where(np.isfinite(updated), updated, depth)
+        changes.append(change)
+        if change < tolerance_um:
+            break
+    valid = np.zeros(shape, bool)
+    valid[mask] = np.all(np.isfinite(g), axis=0)
+    depth_map = np.full(shape, np.nan)
+    depth_map[valid] = depth[valid[mask]]
+    return depth_map, g, valid, changes, scales
+
+
+def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction):
+    """The depth d = k x shape that minimises the mean relative photometric residual (mm)."""
+    def cost(log_k):
+        _, residual = _normals_at(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction)
+        return float(np.nanmean(residual))
+
+    centre = np.log(device.working_distance_mm)
+    found = scipy.optimize.minimize_scalar(cost, bounds=(centre - 0.5, centre + 0.5), method="bounded", options={"xatol": 1e-5})
+    return float(np.exp(found.x))

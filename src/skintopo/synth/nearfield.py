@@ -1,0 +1,120 @@
+"""Rendering through a device: point LEDs and a perspective camera (:mod:`skintopo.device`).
+
+The skin is a height field h(x, y) on a regular grid in the skin plane, placed at
+z = -D + h (D the working distance; h = 0 at the field centre's apex). Each band is rendered
+on that grid with :func:`skintopo.synth.render.render_bands` (the same diffuse, translucency,
+interreflection and specular models as under distant lights), with per-point LED light
+vectors s(P) = Phi (cos theta)^mu (L - P) / |L - P|^3 and per-point view directions. Each
+camera pixel's ray d (a, b, -1) is then intersected with the surface by the fixed point
+d = D - h(d a, d b) (a contraction: the surface's slope times the ray's obliquity is far
+below 1) and the rendered radiance is read there by cubic interpolation. Cast shadows are
+marched along the direction from the field centre to each LED (an approximation).
+
+The grid is wider than the image by ``margin`` so that a surface falling away from the camera
+(a curved forehead) still fills the image. The ground truth of a device acquisition is the
+central part of that grid, on the grid the near-field solver returns
+(:func:`skintopo.nearfield.surface_grid`): spacing D pitch / f, centred on the optical axis.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+import scipy.ndimage
+
+from skintopo.device import Device
+from skintopo.heightmap import HeightMap
+from skintopo.synth.render import NearLighting, RenderSettings, render_bands, sensor
+from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, make_surface
+
+DEFAULT_MARGIN = 0.15  # the rendered grid is this fraction wider than the image on each side
+
+
+def surface_points_mm(height: HeightMap, working_distance_mm):
+    """Camera-frame points (rows, columns, 3) in mm of a height field centred on the optical
+    axis at the working distance."""
+    rows, columns = height.shape
+    dy, dx = height.spacing
+    x = (np.arange(columns) - (columns - 1) / 2) * dx / 1000
+    y = ((rows - 1) / 2 - np.arange(rows)) * dy / 1000
+    z = -working_distance_mm + np.asarray(height.z, dtype=float) / 1000
+    return np.stack(np.broadcast_arrays(x[None, :], y[:, None], z), axis=-1)
+
+
+def near_lighting(height: HeightMap, device: Device):
+    """:class:`~skintopo.synth.render.NearLighting` of the device's LEDs over a height field."""
+    points = surface_points_mm(height, device.working_distance_mm)
+    vectors = np.stack([np.moveaxis(led.light_vectors(np.moveaxis(points, -1, 0)), 0, -1) for led in device.leds])
+    vectors /= np.linalg.norm(vectors[:, vectors.shape[1] // 2, vectors.shape[2] // 2], axis=-1).max()  # ~1 at the centre
+    view = -points / np.linalg.norm(points, axis=-1, keepdims=True)
+    intensities = {band: np.array([led.intensity.get(band, 1.0) for led in device.leds]) for band in ("red", "green", "blue")}
+    return NearLighting(vectors, intensities, view, device.central_directions())
+
+
+def device_surface(spec: SurfaceSpec, device: Device, *, seed=0, margin=DEFAULT_MARGIN) -> SkinSurface:
+    """A synthetic surface on the grid a device renders: the device's pixel footprint at the
+    working distance, the image size plus ``margin`` on each side."""
+    rows, columns = device.camera.size_px
+    pad = int(np.ceil(margin * max(rows, columns)))
+    return make_surface(replace(spec, size_px=(rows + 2 * pad, columns + 2 * pad), pixel_um=device.pixel_um), seed=seed)
+
+
+def truth_on_camera_grid(surface: SkinSurface, device: Device):
+    """The ground truth on the grid the near-field solver returns: the central image-size
+    part of the rendered grid (same spacing, same centre)."""
+    rows, columns = device.camera.size_px
+    top = (surface.height.shape[0] - rows) // 2
+    left = (surface.height.shape[1] - columns) // 2
+    window = (slice(top, top + rows), slice(left, left + columns))
+    return HeightMap(surface.height.z[window], surface.height.spacing), surface.wrinkle_labels[window]
+
+
+def camera_sample_points(height: HeightMap, device: Device, iterations=12):
+    """Where each camera pixel's ray meets the surface: fractional (row, column) indices into
+    the height field's grid, and the depth d (mm) along the optical axis."""
+    a, b = device.camera.rays()
+    rows, columns = height.shape
+    dy, dx = height.spacing
+    z = np.asarray(height.z, dtype=float)
+    depth = np.full(a.shape, device.working_distance_mm)
+    for _ in range(iterations):
+        column = depth * a * 1000 / dx + (columns - 1) / 2
+        row = (rows - 1) / 2 - depth * b * 1000 / dy
+        h = scipy.ndimage.map_coordinates(z, [row, column], order=1, mode="nearest")
+        depth = device.working_distance_mm - h / 1000
+    if row.min() < 0 or column.min() < 0 or row.max() > rows - 1 or column.max() > columns - 1:
+        raise ValueError("the surface grid does not cover the camera's view: increase the margin")
+    return row, column, depth
+
+
+def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: RenderSettings | None = None, seed=0):
+    """Render a surface through a device (point LEDs, perspective camera) and the sensor.
+
+    Returns
+    -------
+    bands : dict of str to ndarray (m, rows, columns)
+        red, green, blue and white images (fractions of full scale), one per LED in the
+        device's order, of the camera's size.
+    info : dict
+        ``exposure_gain`` per band, render diagnostics, timings.
+    """
+    settings = settings or RenderSettings()
+    if settings.interreflection_radius_um is None:
+        widest = max((w.width_um for w in surface.spec.wrinkles), default=0.0)
+        settings = replace(settings, interreflection_radius_um=max(400.0, widest))
+    rng = np.random.default_rng(seed)
+    start = time.perf_counter()
+    near = near_lighting(surface.height, device)
+    linear, info = render_bands(surface.height, surface.normals, settings, rng, near=near)
+    row, column, _ = camera_sample_points(surface.height, device)
+    projected = {band: np.stack([scipy.ndimage.map_coordinates(image, [row, column], order=3, mode="nearest") for image in images])
+                 for band, images in linear.items()}
+    projected = {band: np.maximum(images, 0.0) for band, images in projected.items()}
+    projected["white"] = (projected["red"] + projected["green"] + projected["blue"]) / 3
+    info["seconds_render"] = time.perf_counter() - start
+    bands, info["exposure_gain"] = {}, {}
+    for band, images in projected.items():
+        bands[band], info["exposure_gain"][band] = sensor(images, noise=settings.noise, saturate=settings.saturate, rng=rng)
+    return bands, info
