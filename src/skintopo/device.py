@@ -63,7 +63,7 @@ DEVICE_NAME = "device.json"
 _DEVICE_KEYS = {"format", "version", "working_distance_mm", "camera", "leds", "description"}
 _CAMERA_KEYS = {"focal_length_mm", "pixel_pitch_um", "size_px", "principal_point_px", "radial_distortion"}
 _LED_KEYS = {"name", "position_mm", "direction", "mu", "intensity"}
-NEAR_SKIN_MM = 1.0  # an LED closer than this to the skin plane, inside the field, is suspicious (units?)
+NEAR_SKIN_MM = 1.0  # LEDs closer than this to the skin, or all this close to the camera: metres given?
 
 
 class DeviceError(SkinTopoError):
@@ -275,8 +275,8 @@ def check_device(device: Device):
     Problems: a focal length, pixel pitch or working distance that is not positive; an LED
     at or behind the skin plane (z <= -D) or aimed away from the skin; a negative mu; an intensity that is not positive;
     fewer than three LEDs, or LEDs whose directions from the field centre are coplanar.
-    Warning (units): an LED within ``NEAR_SKIN_MM`` of the skin plane inside the field, which
-    is what positions in metres (or a working distance in metres) look like.
+    Warnings (units): an LED within ``NEAR_SKIN_MM`` of the skin plane, or every LED within
+    it of the camera, which is what positions (or a working distance) in metres look like.
     """
     problems, warns = [], []
     cam = device.camera
@@ -306,9 +306,12 @@ def check_device(device: Device):
             if not (_number(value) and value > 0):
                 problems.append(f"LED {led.name!r}: intensity of {band} must be a positive number, got {value!r}")
         above_skin = position[2] + working
-        if 0 < above_skin < NEAR_SKIN_MM and np.hypot(position[0], position[1]) < half_field_mm:
-            warns.append(f"LED {led.name!r} sits {above_skin * 1000:.0f} um above the skin inside the field: "
+        if 0 < above_skin < NEAR_SKIN_MM:
+            where = "inside" if np.hypot(position[0], position[1]) < half_field_mm else "beside"
+            warns.append(f"LED {led.name!r} sits {above_skin * 1000:.0f} um above the skin, {where} the field: "
                          "were positions or the working distance given in metres? They are in millimetres")
+    if device.leds and max(np.linalg.norm(led.position_mm) for led in device.leds) < NEAR_SKIN_MM < working:
+        warns.append("every LED is within 1 mm of the camera's centre: were the positions given in metres? They are in millimetres")
     if not problems:
         names = [f"LED {led.name!r}" for led in device.leds]
         problems += check_light_directions(device.central_directions(), names)
@@ -385,7 +388,7 @@ def parse_device(data, source="device"):
     )
     problems, warns = check_device(device)
     if problems:
-        raise DeviceError(source, problems)
+        raise DeviceError(source, problems + warns)  # the unit warnings often explain the problems
     for message in warns:
         warnings.warn(f"{source}: {message}", UserWarning, stacklevel=2)
     return device

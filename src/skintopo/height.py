@@ -302,6 +302,14 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     return z
 
 
+def fill_from_nearest(valid, *arrays):
+    """Copies of ``arrays`` with every pixel outside ``valid`` set to the value of the
+    nearest valid pixel (Euclidean distance transform): a bridge over holes that adds no
+    slope or step of its own."""
+    nearest = tuple(scipy.ndimage.distance_transform_edt(~np.asarray(valid, dtype=bool), return_distances=False, return_indices=True))
+    return tuple(np.asarray(a)[nearest] for a in arrays)
+
+
 INTEGRATORS = dict(zip(INTEGRATOR_NAMES, (dct_poisson, frankot_chellappa, masked_least_squares)))
 AUTO_HOLE_FRACTION = 0.01  # auto: up to 1% of invalid pixels, in holes of at most
 AUTO_HOLE_PIXELS = 9  # 9 pixels each, are bridged and integrated by DCT
@@ -346,8 +354,7 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
         elif valid.mean() >= 1 - AUTO_HOLE_FRACTION and _largest_hole(valid) <= AUTO_HOLE_PIXELS:
             # A few tiny holes (shadowed or saturated pixels): bridge them with the nearest
             # valid slopes and integrate by DCT; the holes stay masked in the result.
-            nearest = scipy.ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
-            p, q = p[tuple(nearest)], q[tuple(nearest)]
+            p, q = fill_from_nearest(valid, p, q)
             method = "dct-poisson"
         else:
             method = "least-squares"

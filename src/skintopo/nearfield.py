@@ -23,7 +23,7 @@ variational solver):
    distance visible), or by the working distance (``scale="working-distance"``: the median
    depth is the working distance);
 
-until the depth changes by less than ``tolerance_um`` (default 0.05 um), starting from the
+until the depth changes by less than ``tolerance_um`` RMS (default 0.1 um), starting from the
 plane at the working distance.
 
 The result is resampled to a regular grid in the skin plane (:func:`surface_grid`): the
@@ -46,18 +46,18 @@ import scipy.ndimage
 import scipy.optimize
 
 from skintopo._linalg import solve_symmetric_3x3
-from skintopo.defaults import AUTO_INTEGRATOR, DEFAULT_SHADOW_FRACTION
+from skintopo.defaults import DEFAULT_INTEGRATOR, DEFAULT_SHADOW_FRACTION
 from skintopo.device import Device
 from skintopo.errors import SkinTopoError
 from skintopo.filters import block_mean
-from skintopo.height import integrate_slopes
+from skintopo.height import fill_from_nearest, integrate_slopes
 from skintopo.heightmap import HeightMap
 
 SCALES = ("photometric", "working-distance")
 SCALE_SAMPLE_STEP = 2  # the photometric scale is fitted on every 2nd pixel of every 2nd row (of the binned images)
 CHUNK = 1 << 15  # pixels per block of the per-pixel solves
 COARSE_PIXELS = 256  # the alternation first converges on images binned to about this many pixels across
-DEFAULT_TOLERANCE_UM = 0.05
+DEFAULT_TOLERANCE_UM = 0.1
 SCALE_SETTLED = 1e-4  # the photometric scale is kept once it changes by less than this between iterations
 _UPPER = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 
@@ -78,7 +78,7 @@ class NearFieldResult:
     valid : ndarray of bool
         Camera pixels with at least 3 usable LEDs.
     changes_um : list of float
-        Largest depth change per iteration (micrometres): the convergence record.
+        RMS depth change per iteration (micrometres): the convergence record.
     scales : list of float
         The depth scale chosen at each iteration (1 = unchanged).
     seconds : float
@@ -108,20 +108,22 @@ def _light_matrices(device: Device, points, band):
     return np.stack([led.light_vectors(points, band) * scale for led in device.leds])
 
 
-def _normals_at(intensity, rays, depth, device, band, shadow_fraction):
+def _normals_at(intensity, rays, depth, device, band, shadow_fraction, used=None):
     """:func:`per_pixel_photometric_stereo` with the LEDs' light vectors at the points
-    depth x rays (mm): g (3, P) and the relative residual (P,). Done in chunks of ``CHUNK``
-    pixels, so that the temporaries stay in the processor's cache (about 3x faster than
-    whole-image temporaries at 1000 x 1000, measured)."""
+    depth x rays (mm): g (3, P), the relative residual (P,) and the observations used
+    (m, P). Done in chunks of ``CHUNK`` pixels, so that the temporaries stay in the
+    processor's cache (about 3x faster than whole-image temporaries at 1000 x 1000)."""
     count = rays.shape[1]
     g = np.empty((3, count), np.float32)
     residual = np.empty(count, np.float32)
+    used_now = np.empty(intensity.shape, bool)
     for start in range(0, count, CHUNK):
         part = slice(start, start + CHUNK)
         points = (depth[part] * rays[:, part]).astype(np.float32)
-        g[:, part], residual[part] = per_pixel_photometric_stereo(intensity[:, part], _light_matrices(device, points, band),
-                                                                  shadow_fraction=shadow_fraction)
-    return g, residual
+        g[:, part], residual[part], used_now[:, part] = per_pixel_photometric_stereo(
+            intensity[:, part], _light_matrices(device, points, band), shadow_fraction=shadow_fraction,
+            used=None if used is None else used[:, part])
+    return g, residual, used_now
 
 
 def _solve(lights, values, weights):
@@ -137,7 +139,7 @@ def _solve(lights, values, weights):
     return g
 
 
-def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_SHADOW_FRACTION):
+def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_SHADOW_FRACTION, used=None):
     """Lambertian least squares with a light matrix per pixel.
 
     Parameters
@@ -149,6 +151,9 @@ def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_S
     shadow_fraction : float
         An observation is shadowed when I_i / |s_i| < f rho_0, rho_0 the smaller albedo of two
         first fits (all observations; all but the brightest), as in :mod:`skintopo.normals`.
+    used : ndarray of bool (m, P), optional
+        Which observations to use, decided before (the shadow rule is then not applied: one
+        solve instead of three).
 
     Returns
     -------
@@ -157,23 +162,26 @@ def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_S
     residual : ndarray (P,)
         Sum of squared residuals over the usable observations divided by the sum of squared
         observations (a relative misfit, independent of the albedo).
+    used : ndarray of bool (m, P)
     """
     finite = np.isfinite(intensity)
     values = np.where(finite, intensity, 0).astype(np.float32)
-    strength = np.sqrt(np.sum(lights * lights, axis=1))
-    normalised = values / np.maximum(strength, np.float32(1e-30))
-    weights = finite.astype(np.float32)
-    g_all = _solve(lights, values, weights)
-    brightest = np.argmax(np.where(finite, normalised, -np.inf), axis=0)
-    without = weights.copy()
-    without[brightest, np.arange(values.shape[1])] = 0
-    g_without = _solve(lights, values, without)
-    rho0 = np.fmin(np.sqrt(np.sum(g_all * g_all, axis=0)), np.sqrt(np.sum(g_without * g_without, axis=0)))
-    weights = (finite & ~(normalised < shadow_fraction * rho0)).astype(np.float32)
+    if used is None:
+        strength = np.sqrt(np.sum(lights * lights, axis=1))
+        normalised = values / np.maximum(strength, np.float32(1e-30))
+        weights = finite.astype(np.float32)
+        g_all = _solve(lights, values, weights)
+        brightest = np.argmax(np.where(finite, normalised, -np.inf), axis=0)
+        without = weights.copy()
+        without[brightest, np.arange(values.shape[1])] = 0
+        g_without = _solve(lights, values, without)
+        rho0 = np.fmin(np.sqrt(np.sum(g_all * g_all, axis=0)), np.sqrt(np.sum(g_without * g_without, axis=0)))
+        used = finite & ~(normalised < shadow_fraction * rho0)
+    weights = used.astype(np.float32)
     g = _solve(lights, values, weights)
     predicted = np.sum(lights * g[None], axis=1)
     residual = np.sum(weights * (values - predicted) ** 2, axis=0) / np.maximum(np.sum(weights * values * values, axis=0), 1e-30)
-    return g, residual
+    return g, residual, used
 
 
 def _rays(device: Device):
@@ -199,33 +207,45 @@ def surface_grid(device: Device):
     return np.broadcast_arrays(x[None, :], y[:, None])
 
 
-def resample_to_surface_grid(depth_mm, device: Device, iterations=12):
+def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_iterations=20):
     """Heights (um, toward the camera, 0 at the working distance) on :func:`surface_grid`
-    from per-pixel depths: each node (x, y) is found on the image by the fixed point
-    (column, row) = project(x, y, -d(column, row)); nodes outside the image or on invalid
-    pixels are masked."""
+    from per-pixel depths.
+
+    Each node (x, y) is found on the image by the fixed point
+    (column, row) = project(x, y, -d(column, row)), d read by bilinear interpolation; it
+    contracts by about the surface slope times the ray's obliquity per step. It is run first
+    on every 4th node (to convergence) and then on all nodes from that start, until no node's
+    depth changes by more than ``tolerance_mm`` (0.1 um). Nodes outside the image or on
+    invalid pixels are masked.
+    """
     x, y = surface_grid(device)
     valid = np.isfinite(depth_mm)
     if not valid.any():
         raise SkinTopoError("no valid pixel: nothing to resample")
-    nearest = scipy.ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
-    filled = depth_mm[tuple(nearest)]
-    depth = np.full(x.shape, float(np.median(depth_mm[valid])))
-    for _ in range(iterations):
-        column, row = device.camera.project(np.stack([x, y, -depth]))
-        previous, depth = depth, scipy.ndimage.map_coordinates(filled, [row, column], order=1, mode="nearest")
-        if np.max(np.abs(depth - previous)) < 1e-7:  # mm
-            break
+    (filled,) = fill_from_nearest(valid, depth_mm) if not valid.all() else (depth_mm,)
+
+    def fixed_point(x, y, depth):
+        for _ in range(max_iterations):
+            column, row = device.camera.project(np.stack([x, y, -depth]))
+            previous, depth = depth, scipy.ndimage.map_coordinates(filled, [row, column], order=1, mode="nearest")
+            if np.max(np.abs(depth - previous)) < tolerance_mm:
+                break
+        return depth, column, row
+
+    step = 4
+    start, _, _ = fixed_point(x[::step, ::step], y[::step, ::step], np.full(x[::step, ::step].shape, float(np.median(depth_mm[valid]))))
+    node_rows, node_columns = np.mgrid[0 : x.shape[0], 0 : x.shape[1]] / step
+    depth, column, row = fixed_point(x, y, scipy.ndimage.map_coordinates(start, [node_rows, node_columns], order=1, mode="nearest"))
     rows, columns = depth_mm.shape
     inside = (row >= 0) & (row <= rows - 1) & (column >= 0) & (column <= columns - 1)
-    inside &= scipy.ndimage.map_coordinates(valid.astype(float), [row, column], order=1, mode="constant") > 0.999
+    inside &= scipy.ndimage.map_coordinates(valid.astype(np.float32), [row, column], order=1, mode="constant") > 0.999
     z = (device.working_distance_mm - depth) * 1000
     return HeightMap(np.where(inside, z, np.nan), device.pixel_um, inside)
 
 
 def near_field_photometric_stereo(images, device: Device, band, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION,
                                   scale="photometric", tolerance_um=DEFAULT_TOLERANCE_UM, max_iterations=30,
-                                  integrator=AUTO_INTEGRATOR, full_resolution_passes=None):
+                                  integrator=DEFAULT_INTEGRATOR, full_resolution_passes=None):
     """Normals, albedo and height from images taken under the device's LEDs (module notes).
 
     The alternation first runs to convergence on images binned to about 256 pixels across
@@ -245,7 +265,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
     scale : {"photometric", "working-distance"}
         How the constant of integration is fixed (module notes).
     tolerance_um, max_iterations
-        Stop when the largest depth change is below ``tolerance_um``.
+        Stop when the RMS depth change is below ``tolerance_um``.
 
     Returns
     -------
@@ -279,14 +299,13 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         known = np.isfinite(coarse_depth)
         if not known.any():
             raise SkinTopoError("no pixel could be solved: check the images and the device's LED order")
-        nearest = scipy.ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
         v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
         position = [(v - (factor - 1) / 2) / factor, (u - (factor - 1) / 2) / factor]
-        depth = scipy.ndimage.map_coordinates(coarse_depth[tuple(nearest)], position, order=1, mode="nearest")
+        depth = scipy.ndimage.map_coordinates(fill_from_nearest(known, coarse_depth)[0], position, order=1, mode="nearest")
         scale = float(np.median(coarse_depth[known]))
     if factor > 1 and full_resolution_passes is not None:
         settings["max_iterations"] = full_resolution_passes
-    depth_map, g, valid, changes, scales = _alternate(images, device, mask, depth, scale, **settings)
+    depth_map, g, valid, changes, scales = _alternate(images, device, mask, depth, scale, keep_shadows=factor > 1, **settings)
     options["iterations"] = len(changes)
     albedo = np.full(shape, np.nan, dtype=np.float32)
     normals = np.full((*shape, 3), np.nan, dtype=np.float32)
@@ -296,10 +315,13 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
                            time.perf_counter() - start, options)
 
 
-def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator):
+def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator,
+               keep_shadows=False):
     """The alternation of the module notes from an initial depth map (mm). ``scale`` is
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
-    Returns (depth map, g (3, P), valid map, changes_um, scales)."""
+    ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
+    out (for a start close to the solution, where the light vectors change by a fraction of
+    a percent). Returns (depth map, g (3, P), valid map, changes_um, scales)."""
     shape = mask.shape
     w, w_u, w_v = _rays(device)
     rays = w[:, mask].astype(np.float32)
@@ -309,16 +331,23 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     sample = sample[mask]
     depth = depth[mask].astype(np.float64)
     changes, scales = [], []
-    g = None
+    g = used = None
     for _ in range(max_iterations):
-        g, _ = _normals_at(intensity, rays, depth, device, band, shadow_fraction)
+        g, _, used_now = _normals_at(intensity, rays, depth, device, band, shadow_fraction, used)
+        if keep_shadows:
+            used = used_now
         n = np.full((3, *shape), np.nan, dtype=np.float32)
         n[:, mask] = g / np.sqrt(np.sum(g * g, axis=0))
         along = np.sum(n * w, axis=0)
         log_du = -np.sum(n * w_u, axis=0) / along
         log_dv = -np.sum(n * w_v, axis=0) / along
         # integrate_slopes works in x right, y up: p = d/dcolumn, q = -d/drow, on a unit grid
-        log_depth = integrate_slopes(log_du, -log_dv, 1.0, mask=mask, method=integrator).z[mask]
+        solved = mask & np.isfinite(log_du) & np.isfinite(log_dv)
+        if integrator == "least-squares":
+            log_depth = integrate_slopes(log_du, -log_dv, 1.0, mask=solved, method=integrator).z[mask]
+        else:  # holes (pixels in shadow from too many LEDs) bridged, as the auto integrator does for small ones
+            slopes = (log_du, -log_dv) if solved.all() else fill_from_nearest(solved, log_du, -log_dv)
+            log_depth = integrate_slopes(*slopes, 1.0, method=integrator).z[mask]
         shape_only = np.exp(log_depth - np.nanmedian(log_depth))
         if scale == "photometric":
             factor = _photometric_scale(intensity[:, sample], rays[:, sample], shape_only[sample], device, band, shadow_fraction)
@@ -330,7 +359,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
             factor = scale
         scales.append(float(factor / device.working_distance_mm))
         updated = factor * shape_only
-        change = float(np.nanmax(np.abs(updated - depth)) * 1000)
+        change = float(np.sqrt(np.nanmean((updated - depth) ** 2)) * 1000)
         depth = np.where(np.isfinite(updated), updated, depth)
         changes.append(change)
         if change < tolerance_um:
@@ -345,7 +374,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
 def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction):
     """The depth d = k x shape that minimises the mean relative photometric residual (mm)."""
     def cost(log_k):
-        _, residual = _normals_at(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction)
+        _, residual, _ = _normals_at(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction)
         return float(np.nanmean(residual))
 
     centre = np.log(device.working_distance_mm)

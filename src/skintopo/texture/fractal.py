@@ -51,6 +51,7 @@ import scipy.fft
 import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
+from skintopo.height import fill_from_nearest
 from skintopo.heightmap import HeightMap
 from skintopo.texture.areal import row_blocks
 
@@ -78,8 +79,7 @@ def _complete_field(height: HeightMap):
     if not height.mask.all():
         if not height.mask.any():
             raise SkinTopoError("the height map has no valid points")
-        index = scipy.ndimage.distance_transform_edt(~height.mask, return_distances=False, return_indices=True)
-        z = z[tuple(index)]
+        (z,) = fill_from_nearest(height.mask, z)
     rows, columns = z.shape
     if columns < MIN_COLUMNS or rows < 2:
         raise SkinTopoError(f"fractal dimension needs a map at least {MIN_COLUMNS} columns wide, got {rows} x {columns}")
