@@ -155,3 +155,35 @@ def test_wrong_image_count_is_refused():
     device = paper_device(size_px=32)
     with pytest.raises(Exception, match="expected 4 images"):
         near_field_photometric_stereo(np.ones((3, 32, 32)), device, "red")
+
+
+def test_leds_calibrated_from_chrome_spheres_at_two_places_and_a_flat_target():
+    """Rendered chrome sphere (10 mm radius) at two places and a flat matte target, seen by
+    the paper-like device whose 4 LEDs (about 100 mm from the spheres) have mu 1.0 / 1.6 /
+    2.3 / 0.8, tilted axes and unequal intensities: positions within 1 mm (0.45 mm
+    measured), mu within 10% (2.2%), directions within 1 degree (0.13), intensities within 3%."""
+    from skintopo.calibration import calibrate_device
+    from skintopo.device import aimed_at
+    from skintopo.synth.nearfield import device_flat_images, device_sphere_images
+
+    device = paper_device(size_px=1000)
+    truth = tuple(replace(led, mu=mu, direction=aimed_at(led.position_mm, (3.0 * (i - 1.5), -2.0, -150.0)),
+                          intensity={band: share for band in ("red", "green", "blue")})
+                  for i, (led, mu, share) in enumerate(zip(device.leds, (1.0, 1.6, 2.3, 0.8), (1.0, 0.9, 0.8, 1.1))))
+    device = replace(device, leds=truth)
+    places = [device_sphere_images(device, centre, 10.0, seed=k) for k, centre in enumerate([(-8.0, 5.0, -140.0), (10.0, -6.0, -115.0)])]
+    found, details = calibrate_device(device.camera, 150.0, places, 10.0, flat_images=device_flat_images(device, 150.0),
+                                      names=[led.name for led in truth])
+    assert np.allclose(details["sphere_centres_mm"], [(-8.0, 5.0, -140.0), (10.0, -6.0, -115.0)], atol=0.05)
+    for true, led in zip(truth, found.leds):
+        assert np.linalg.norm(np.subtract(led.position_mm, true.position_mm)) < 1.0, (true.name, led.position_mm)
+        assert led.mu == pytest.approx(true.mu, rel=0.1)
+        assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, true.direction)))) < 1.0
+        assert led.intensity["red"] == pytest.approx(true.intensity["red"] / 1.1, rel=0.03)
+
+
+def test_one_sphere_place_is_not_enough():
+    from skintopo.calibration import led_positions_from_chrome_spheres
+
+    with pytest.raises(Exception, match="two or more places"):
+        led_positions_from_chrome_spheres([[np.zeros((8, 8))] * 4], paper_device(size_px=8).camera, 10.0)

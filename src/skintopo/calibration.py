@@ -28,8 +28,10 @@ from pathlib import Path
 
 import numpy as np
 import scipy.ndimage
+import scipy.optimize
 
 from skintopo.acquisition import read_image
+from skintopo.device import Camera, Device, Led, aimed_at, check_device
 from skintopo.errors import SkinTopoError
 
 HIGHLIGHT_LEVEL = 0.9
@@ -58,6 +60,23 @@ def find_sphere(images, mask=None, *, names=None):
     SkinTopoError
         If no sphere-like bright round region is found.
     """
+    region = sphere_region(images, mask)
+    boundary = region & ~scipy.ndimage.binary_erosion(region)
+    rows, columns = np.nonzero(boundary)
+    cx, cy, r = fit_circle(np.column_stack([columns, rows]).astype(float))
+    # A round region fills its fitted disc; anything else (a bright background, a blob) does not.
+    fill = region.sum() / (np.pi * r * r)
+    # The boundary pixels' centres lie about half a pixel inside the rim: the radius comes
+    # from the area instead (a digitised disc of radius r holds pi r^2 pixel centres).
+    r = float(np.sqrt(region.sum() / np.pi))
+    if not 0.85 < fill < 1.15:
+        raise SkinTopoError(f"sphere not found: the bright region is not round (it fills {fill:.0%} of its fitted circle)")
+    return cx, cy, r
+
+
+def sphere_region(images, mask=None):
+    """The sphere's pixels (bool image): the mask if given, else the largest region of the
+    brightest value each pixel takes, thresholded (Otsu on log intensity), holes filled."""
     if mask is None:
         from skimage.filters import threshold_otsu
 
@@ -65,8 +84,10 @@ def find_sphere(images, mask=None, *, names=None):
         if not np.ptp(brightest) > 0:
             raise SkinTopoError("sphere not found: the images are uniform")
         # Otsu on log intensity: a chrome sphere's highlights (a few dozen saturated pixels per
-        # light) would otherwise take the threshold for themselves and leave the dim sphere out
-        level = np.log(np.maximum(brightest, 0.0) + 1e-3 * brightest.max())
+        # light) would otherwise take the threshold for themselves and leave the dim sphere out;
+        # the floor of 1% of the maximum keeps the sensor noise of a dark background from
+        # splitting it (with 0.1%, a background of noise around 0 took the threshold)
+        level = np.log(np.maximum(brightest, 0.0) + 1e-2 * brightest.max())
         region = level > threshold_otsu(level)
         labels, count = scipy.ndimage.label(region)
         if count == 0:
@@ -79,17 +100,7 @@ def find_sphere(images, mask=None, *, names=None):
     if region.sum() < MIN_SPHERE_FRACTION * region.size:
         source = "the mask" if mask is not None else "the images"
         raise SkinTopoError(f"sphere not found: the largest bright region in {source} covers only {region.sum()} pixels")
-    boundary = region & ~scipy.ndimage.binary_erosion(region)
-    rows, columns = np.nonzero(boundary)
-    cx, cy, r = fit_circle(np.column_stack([columns, rows]).astype(float))
-    # A round region fills its fitted disc; anything else (a bright background, a blob) does not.
-    fill = region.sum() / (np.pi * r * r)
-    # The boundary pixels' centres lie about half a pixel inside the rim: the radius comes
-    # from the area instead (a digitised disc of radius r holds pi r^2 pixel centres).
-    r = float(np.sqrt(region.sum() / np.pi))
-    if not 0.85 < fill < 1.15:
-        raise SkinTopoError(f"sphere not found: the bright region is not round (it fills {fill:.0%} of its fitted circle)")
-    return cx, cy, r
+    return region
 
 
 def highlight_centroid(image, sphere, *, name="image", saturation=None):
@@ -201,3 +212,168 @@ def calibrate_lights(paths, *, mask=None, method="chrome", saturation=0.995):
         for entry in lights:
             entry["intensity"] = entry.pop("strength") / strongest
     return {"sphere": {"centre_px": [sphere[0], sphere[1]], "radius_px": sphere[2]}, "method": method, "lights": lights}
+
+
+# Near-field LEDs (skintopo.device): positions from a chrome sphere seen at two or more
+# places, emission (principal direction, mu, intensity) from a flat matte target.
+
+
+def sphere_centre_from_silhouette(region, camera: Camera, radius_mm):
+    """Centre (mm, camera frame) of a sphere of known radius from its silhouette.
+
+    Under a perspective camera every ray through the silhouette's rim is tangent to the
+    sphere: its distance to the centre C is the radius, |C x r| = R for unit rays r. The rim
+    is the 0.5 level line of the region (sub-pixel, scikit-image's marching squares); C
+    comes from nonlinear least squares (SciPy), started on the ray through the region's
+    centroid at the distance its area implies.
+    """
+    from skimage.measure import find_contours
+
+    region = np.asarray(region, dtype=bool)
+    contours = find_contours(np.pad(region, 1).astype(float), 0.5)
+    rim = max(contours, key=len) - 1  # (row, column), undo the padding
+    a, b = camera.rays(rim[:, 1], rim[:, 0])
+    rays = np.stack([a, b, -np.ones_like(a)], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rows, columns = np.nonzero(region)
+    ca, cb = camera.rays(columns.mean(), rows.mean())
+    towards = np.array([ca, cb, -1.0]) / np.linalg.norm([ca, cb, -1.0])
+    angular_radius = np.sqrt(region.sum() / np.pi) / camera.focal_length_px
+    start = towards * radius_mm / np.sin(angular_radius)
+
+    def distance_to_rays(centre):
+        return np.linalg.norm(np.cross(centre, rays), axis=1) - radius_mm
+
+    return scipy.optimize.least_squares(distance_to_rays, start, x_scale="jac").x
+
+
+def mirror_ray(camera: Camera, highlight_xy, centre_mm, radius_mm):
+    """(point, direction) of the ray a mirror sphere reflects toward the light from the
+    highlight at image position ``highlight_xy``: the camera ray r meets the sphere at P with
+    normal N = (P - C) / R and leaves along m = r - 2 (r . N) N."""
+    a, b = camera.rays(highlight_xy[0], highlight_xy[1])
+    ray = np.array([a, b, -1.0]) / np.linalg.norm([a, b, -1.0])
+    along = ray @ centre_mm
+    discriminant = along**2 - (centre_mm @ centre_mm - radius_mm**2)
+    if discriminant < 0:
+        raise SkinTopoError("the highlight's ray misses the fitted sphere")
+    point = (along - np.sqrt(discriminant)) * ray
+    normal = (point - centre_mm) / radius_mm
+    return point, ray - 2 * (ray @ normal) * normal
+
+
+def closest_point_to_lines(points, directions):
+    """The point nearest (least squares) to lines through ``points`` along ``directions``:
+    sum_k (I - m_k m_k^T) X = sum_k (I - m_k m_k^T) P_k. Also returns the RMS distance."""
+    directions = np.asarray(directions, dtype=float)
+    directions = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    projectors = np.eye(3)[None] - directions[:, :, None] * directions[:, None, :]
+    point = np.linalg.solve(projectors.sum(axis=0), np.einsum("kij,kj->i", projectors, points))
+    offsets = np.einsum("kij,kj->ki", projectors, point - np.asarray(points, dtype=float))
+    return point, float(np.sqrt(np.mean(np.sum(offsets**2, axis=1))))
+
+
+def led_positions_from_chrome_spheres(image_sets, camera: Camera, radius_mm, *, saturation=None):
+    """LED positions (mm, camera frame) from a chrome sphere of known radius imaged at two or
+    more places, one image per LED at each place (the same LED order everywhere).
+
+    Each place gives the sphere's centre (:func:`sphere_centre_from_silhouette`) and, per LED,
+    the reflected ray through its highlight (:func:`mirror_ray`); the LED is the point
+    nearest to its rays (:func:`closest_point_to_lines`). Returns the positions (m, 3) and
+    the details (sphere centres, the rays' RMS miss distance per LED, mm).
+    """
+    if len(image_sets) < 2:
+        raise SkinTopoError(f"LED positions need the chrome sphere at two or more places, got {len(image_sets)}")
+    counts = {len(images) for images in image_sets}
+    if len(counts) != 1:
+        raise SkinTopoError(f"every place needs one image per LED; got {sorted(len(images) for images in image_sets)} images")
+    rays = []
+    centres = []
+    for place, images in enumerate(image_sets, start=1):
+        images = [_grey(image) for image in images]
+        region = sphere_region(images)
+        centre = sphere_centre_from_silhouette(region, camera, radius_mm)
+        circle = find_sphere(images, region)
+        centres.append(centre)
+        rays.append([mirror_ray(camera, highlight_centroid(image, circle, name=f"place {place}, LED {i + 1}", saturation=saturation),
+                                centre, radius_mm) for i, image in enumerate(images)])
+    positions, misses = [], []
+    for led in range(counts.pop()):
+        point, miss = closest_point_to_lines([r[led][0] for r in rays], [r[led][1] for r in rays])
+        positions.append(point)
+        misses.append(miss)
+    return np.array(positions), {"sphere_centres_mm": np.array(centres).tolist(), "ray_miss_rms_mm": misses}
+
+
+def led_emission_from_flat_target(image, camera: Camera, position_mm, depth_mm, *, step=4, lit_fraction=0.05):
+    """(direction, mu, strength) of one LED from an image of a flat matte target facing the
+    camera at ``depth_mm``.
+
+    The target's points P = depth (a, b, -1) show I = k (cos theta)^mu (n . (L - P)) / |L - P|^3,
+    n = (0, 0, 1), cos theta = d . (P - L) / |P - L|: log I is fitted for log k, mu and the
+    principal direction d (two angles) by nonlinear least squares over every ``step``-th
+    pixel lit above ``lit_fraction`` of the maximum. The image must be corrected for the
+    camera's own vignetting (flat-field of the camera, not of the LEDs).
+    """
+    grey = _grey(image)[::step, ::step]
+    rows, columns = np.mgrid[0 : grey.shape[0], 0 : grey.shape[1]] * step
+    a, b = camera.rays(columns, rows)
+    lit = grey > lit_fraction * grey.max()
+    if lit.sum() < 20:
+        raise SkinTopoError("too few lit pixels on the flat target")
+    points = depth_mm * np.stack([a[lit], b[lit], -np.ones(lit.sum())], axis=1)
+    towards = np.asarray(position_mm, dtype=float) - points
+    distance = np.linalg.norm(towards, axis=1)
+    geometric = np.log(towards[:, 2] / distance**3)  # n . (L - P) / |L - P|^3 with n = (0, 0, 1)
+    observed = np.log(grey[lit])
+    aim = -np.asarray(position_mm, dtype=float) + np.array([0.0, 0.0, -depth_mm])
+    aim /= np.linalg.norm(aim)
+
+    def direction(angles):
+        polar, azimuth = angles
+        return np.array([np.sin(polar) * np.cos(azimuth), np.sin(polar) * np.sin(azimuth), -np.cos(polar)])
+
+    def residual(parameters):
+        log_k, mu, polar, azimuth = parameters
+        cos_theta = -(towards @ direction((polar, azimuth))) / distance
+        return log_k + mu * np.log(np.maximum(cos_theta, 1e-9)) + geometric - observed
+
+    start_polar = np.arccos(-aim[2])
+    start = [float(np.median(observed - geometric)), 1.0, start_polar, np.arctan2(aim[1], aim[0])]
+    fit = scipy.optimize.least_squares(residual, start, x_scale="jac")
+    log_k, mu, polar, azimuth = fit.x
+    return direction((polar, azimuth)), float(mu), float(np.exp(log_k))
+
+
+def calibrate_device(camera: Camera, working_distance_mm, chrome_image_sets, sphere_radius_mm, *, flat_images=None,
+                     flat_depth_mm=None, names=None, saturation=None):
+    """A :class:`~skintopo.device.Device` from calibration images: LED positions from the
+    chrome sphere at two or more places, and, with ``flat_images`` (one per LED, the flat
+    matte target at ``flat_depth_mm``, default the working distance), each LED's principal
+    direction, mu and relative intensity (the same in every band); without them the LEDs are
+    taken as aimed at the field centre with mu = 1 and equal intensities. Returns the device
+    and the calibration details (JSON-ready)."""
+    positions, details = led_positions_from_chrome_spheres(chrome_image_sets, camera, sphere_radius_mm, saturation=saturation)
+    names = list(names) if names else [f"led{i + 1}" for i in range(len(positions))]
+    if len(names) != len(positions):
+        raise SkinTopoError(f"{len(names)} LED names for {len(positions)} LEDs")
+    target = (0.0, 0.0, -working_distance_mm)
+    leds = []
+    if flat_images is not None:
+        if len(flat_images) != len(positions):
+            raise SkinTopoError(f"{len(flat_images)} flat-target images for {len(positions)} LEDs: one per LED")
+        depth = working_distance_mm if flat_depth_mm is None else flat_depth_mm
+        emission = [led_emission_from_flat_target(image, camera, position, depth) for image, position in zip(flat_images, positions)]
+        strongest = max(strength for _, _, strength in emission)
+        for name, position, (direction, mu, strength) in zip(names, positions, emission):
+            share = strength / strongest
+            leds.append(Led(name, tuple(map(float, position)), tuple(map(float, direction)), mu,
+                            {"red": share, "green": share, "blue": share}))
+        details["flat_depth_mm"] = depth
+    else:
+        leds = [Led(name, tuple(map(float, position)), aimed_at(position, target)) for name, position in zip(names, positions)]
+    device = Device(camera, tuple(leds), float(working_distance_mm), description="calibrated with skintopo.calibration.calibrate_device")
+    problems, _ = check_device(device)
+    if problems:
+        raise SkinTopoError("the calibrated device is not usable: " + "; ".join(problems))
+    return device, details

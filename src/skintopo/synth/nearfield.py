@@ -118,3 +118,53 @@ def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: 
     for band, images in projected.items():
         bands[band], info["exposure_gain"][band] = sensor(images, noise=settings.noise, saturate=settings.saturate, rng=rng)
     return bands, info
+
+
+CHROME_ROOM_LEVEL = 0.06  # the dim room a chrome sphere reflects (fraction of full scale)
+
+
+def _unit_rays(device: Device):
+    a, b = device.camera.rays()
+    rays = np.stack([a, b, -np.ones_like(a)])
+    return rays / np.linalg.norm(rays, axis=0)
+
+
+def device_sphere_images(device: Device, centre_mm, radius_mm, *, led_radius_mm=2.0, noise=0.003, seed=0):
+    """A chrome (mirror) sphere seen through the device, one image per LED.
+
+    Each pixel's ray meets the sphere at P (normal N) and is reflected along
+    m = r - 2 (r . N) N; the LED, a disc of ``led_radius_mm``, shows where m points at it
+    (a Gaussian spot of the disc's angular radius seen from P) over a dim room; the highlight
+    saturates. Rays that miss the sphere see a black background. Sensor noise, clipped to
+    [0, 1]."""
+    centre = np.asarray(centre_mm, dtype=float)
+    rays = _unit_rays(device)
+    along = np.tensordot(centre, rays, axes=1)
+    discriminant = along**2 - (centre @ centre - radius_mm**2)
+    hit = discriminant > 0
+    distance = along - np.sqrt(np.where(hit, discriminant, 0.0))
+    points = distance * rays
+    normals = (points - centre[:, None, None]) / radius_mm
+    mirrored = rays - 2 * np.sum(rays * normals, axis=0) * normals
+    rng = np.random.default_rng(seed)
+    images = []
+    for led in device.leds:
+        towards = np.asarray(led.position_mm, dtype=float)[:, None, None] - points
+        length = np.linalg.norm(towards, axis=0)
+        angle = np.arccos(np.clip(np.sum(mirrored * towards, axis=0) / length, -1, 1))
+        spot = 3.0 * np.exp(-((angle / np.arctan(led_radius_mm / length)) ** 2))
+        image = np.where(hit, CHROME_ROOM_LEVEL + spot, 0.0) + noise * rng.standard_normal(hit.shape)
+        images.append(np.clip(image, 0.0, 1.0))
+    return images
+
+
+def device_flat_images(device: Device, depth_mm, *, albedo=0.7, noise=0.003, seed=0, band="red"):
+    """A flat Lambertian target facing the camera at ``depth_mm``, one image per LED:
+    I = albedo n . s(P), n = (0, 0, 1), scaled so that the brightest image peaks at 80% of
+    full scale, with sensor noise."""
+    a, b = device.camera.rays()
+    points = depth_mm * np.stack([a, b, -np.ones_like(a)])
+    shading = np.stack([np.maximum(led.light_vectors(points, band)[2], 0.0) for led in device.leds]) * albedo
+    shading *= 0.8 / shading.max()
+    rng = np.random.default_rng(seed)
+    return list(np.clip(shading + noise * rng.standard_normal(shading.shape), 0.0, 1.0))
