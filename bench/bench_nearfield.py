@@ -16,8 +16,8 @@ away; the truth itself is not processed); the forehead radius from a least-squar
 Speed: 12 images (3 bands x 4 LEDs) of 1000 x 1000 through the near-field solver against the
 distant-light one (normals + integration per band).
 
-Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin]``.
-Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS.json.
+Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``.
+Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band].json.
 """
 
 import argparse
@@ -33,12 +33,12 @@ from skintopo.filters import polynomial_form, sphere_fit
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.nearfield import near_field_photometric_stereo
-from skintopo.normals import photometric_stereo
+from skintopo.normals import photometric_stereo, separate_specular
 from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
-from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, truth_on_camera_grid
-from skintopo.synth.surfaces import SkinSurface
+from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
 
 RADIUS_MM = 80.0
+RGB = ("red", "green", "blue")
 EFFECTS = {"lambertian": Effects.none(), "skin": Effects(interreflection=False)}
 
 
@@ -79,30 +79,34 @@ def main():
     parser.add_argument("--size", type=int, default=1000, help="camera pixels across (the field stays 65 mm)")
     parser.add_argument("--effects", choices=sorted(EFFECTS), default="lambertian",
                         help="lambertian: diffuse only; skin: + translucency, highlights, cast shadows (no interreflection)")
+    parser.add_argument("--highlights", choices=["none", "cross-band"], default="none",
+                        help="cross-band: every reconstruction solves the dichromatic diffuse images (images minus their specular part)")
     args = parser.parse_args()
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
     start = time.perf_counter()
-    bands, _ = simulate_device_acquisition(surface, device, settings, seed=1)
+    bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
     seconds_render = time.perf_counter() - start
-    truth, labels = truth_on_camera_grid(surface, device)
-    rows = slice((surface.height.shape[0] - truth.shape[0]) // 2, (surface.height.shape[0] - truth.shape[0]) // 2 + truth.shape[0])
-    cols = slice((surface.height.shape[1] - truth.shape[1]) // 2, (surface.height.shape[1] - truth.shape[1]) // 2 + truth.shape[1])
-    window = (rows, cols)
-    crop = SkinSurface(truth, surface.p[window], surface.q[window], surface.normals[window], labels, surface.wrinkle_depth[window],
-                       surface.spec)
+    crop = camera_grid_surface(surface, device)
+    truth, labels = crop.height, crop.wrinkle_labels
     lights = device.central_directions()
-    ideal_bands, _ = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
+    ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
 
     result = {"device": device.describe(), "effects": args.effects, "size_px": args.size, "pixel_um": device.pixel_um,
               "forehead_radius_mm": RADIUS_MM, "seconds_render": seconds_render, "band": "red"}
-    result["ideal"] = scores(distant_reconstruction(ideal_bands["red"][0], lights, truth.spacing), truth, labels)
-    near = near_field_photometric_stereo(bands["red"], device, "red")
+    red, ideal_red = bands["red"], ideal_bands["red"][0]
+    if args.highlights == "cross-band":
+        red = red - separate_specular(*(bands[b] / info["exposure_gain"][b] for b in RGB)).specular * info["exposure_gain"]["red"]
+        ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
+            * ideal_info["exposure_gain"]["red"]
+    result["highlights"] = args.highlights
+    result["ideal"] = scores(distant_reconstruction(ideal_red, lights, truth.spacing), truth, labels)
+    near = near_field_photometric_stereo(red, device, "red")
     result["near_field"] = scores(near.height, truth, labels)
     result["near_field"]["iterations"] = near.options["iterations"]
     result["near_field"]["changes_um"] = near.changes_um
     result["near_field"]["binned"] = near.options.get("binned")
-    result["distant_solver"] = scores(distant_reconstruction(bands["red"], lights, truth.spacing), truth, labels)
+    result["distant_solver"] = scores(distant_reconstruction(red, lights, truth.spacing), truth, labels)
     result["difference_after_form_um"] = result["near_field"]["rms_after_form_um"] - result["ideal"]["rms_after_form_um"]
 
     # speed: 12 images, three bands; the distant-light time on the ideal scene's images (where
@@ -119,6 +123,7 @@ def main():
     result["speed"] = {"images": 12, "seconds_distant": seconds_distant, "seconds_near_field": seconds_near,
                        "ratio": seconds_near / seconds_distant}
     name = "nearfield" if (args.size, args.effects) == (1000, "lambertian") else f"nearfield-{args.size}-{args.effects}"
+    name += "" if args.highlights == "none" else "-cross-band"
     write_result(name, result)
 
 

@@ -36,12 +36,12 @@ def _write_ply(path, z, pixel):
     Path(path).write_bytes(header.encode() + vertices.tobytes() + face_records.tobytes())
 
 
-def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_depth=8, seed=0):
+def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_depth=8, seed=0, face_normals=True):
     """Images (3 bands, m, rows, columns) of the height field ``z_um`` (micrometres).
 
     ``albedo``: (red, green, blue) diffuse reflectance; ``coat_roughness``: None for a
     purely diffuse surface, else a rough dielectric coat (Mitsuba ``roughplastic``, Beckmann
-    alpha, index 1.38) over the diffuse base.
+    alpha, index 1.38) over the diffuse base. ``face_normals=False``: smooth vertex normals.
     """
     import mitsuba as mi
 
@@ -71,7 +71,7 @@ def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_d
                     "film": {"type": "hdrfilm", "width": columns, "height": rows, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
                     "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
                 },
-                "skin": {"type": "ply", "filename": str(mesh_path), "bsdf": bsdf, "face_normals": True},
+                "skin": {"type": "ply", "filename": str(mesh_path), "bsdf": bsdf, "face_normals": face_normals},
                 "light": {"type": "directional", "direction": (-light).tolist(), "irradiance": {"type": "rgb", "value": [1, 1, 1]}},
             })
             images.append(np.array(mi.render(scene), dtype=float) * np.pi)
@@ -88,3 +88,38 @@ def exponential_scattering(image, pixel_um, weight, length_um):
     padded = np.pad(image, [(0, 0)] * (image.ndim - 2) + [(radius, radius), (radius, radius)], mode="symmetric")
     blurred = scipy.signal.fftconvolve(padded, kernel.reshape((1,) * (image.ndim - 2) + kernel.shape), mode="valid")
     return (1 - weight) * image + weight * blurred
+
+
+def render_device(z_um, pixel_um, device, albedo, *, spp=32, max_depth=2, seed=0):
+    """Images (3 bands, m, rows, columns) of the height field ``z_um`` (on a grid of
+    ``pixel_um``, centred on the optical axis, h = 0 at the working distance) seen through
+    ``device`` (:mod:`skintopo.device`): Mitsuba's ``perspective`` sensor with the device's
+    field of view, one ``point`` emitter per LED (isotropic: the device's LEDs must have
+    mu = 0), a diffuse BSDF with smooth vertex normals. ``max_depth=2``: direct light only."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    camera = device.camera
+    rows, columns = camera.size_px
+    fov = float(np.degrees(2 * np.arctan(columns / (2 * camera.focal_length_px))))
+    z_mm = z_um / 1000.0 - device.working_distance_mm
+    with tempfile.TemporaryDirectory() as folder:
+        mesh_path = Path(folder) / "skin.ply"
+        _write_ply(mesh_path, z_mm, pixel_um / 1000.0)
+        images = []
+        for led in device.leds:
+            scene = mi.load_dict({
+                "type": "scene",
+                "integrator": {"type": "path", "max_depth": max_depth},
+                "sensor": {
+                    "type": "perspective", "fov": fov, "fov_axis": "x",
+                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 0], target=[0, 0, -1], up=[0, 1, 0]),
+                    "film": {"type": "hdrfilm", "width": columns, "height": rows, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                    "sampler": {"type": "independent", "sample_count": spp, "seed": seed},
+                },
+                "skin": {"type": "ply", "filename": str(mesh_path), "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": list(albedo)}},
+                         "face_normals": False},
+                "light": {"type": "point", "position": list(led.position_mm), "intensity": {"type": "rgb", "value": [1, 1, 1]}},
+            })
+            images.append(np.array(mi.render(scene), dtype=float) * np.pi)
+    return np.moveaxis(np.stack(images), -1, 0)

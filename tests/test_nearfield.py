@@ -15,8 +15,7 @@ from skintopo.height import integrate_normals
 from skintopo.nearfield import near_field_photometric_stereo
 from skintopo.normals import photometric_stereo
 from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
-from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, truth_on_camera_grid
-from skintopo.synth.surfaces import SkinSurface
+from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
 
 
 def _device_dict(**changes):
@@ -103,8 +102,8 @@ def _scene(size=256):
                    form_radius_mm=80.0, microrelief=False)
     surface = device_surface(spec, device, seed=1)
     bands, _ = simulate_device_acquisition(surface, device, RenderSettings(effects=Effects.none(), noise=1.0), seed=1)
-    truth, labels = truth_on_camera_grid(surface, device)
-    return device, surface, bands, truth, labels
+    crop = camera_grid_surface(surface, device)
+    return device, crop, bands, crop.height, crop.wrinkle_labels
 
 
 def _after_form(height, truth):
@@ -119,17 +118,13 @@ def test_near_field_solver_recovers_the_forehead_that_a_distant_light_solver_ben
     sensor noise: the near-field height has the error of the same scene under ideal distant
     lights (+ 0.65 um after form removal, measured), the forehead radius within 0.2% (0.15%);
     the distant-light solver on the same images bends it (radius -48%, 350 um after form)."""
-    device, surface, bands, truth, labels = _scene()
+    device, crop, bands, truth, labels = _scene()
     near = near_field_photometric_stereo(bands["red"], device, "red")
     assert near.converged and near.height.mask.mean() > 0.99
     near_error = _after_form(near.height, truth)
     radius_mm = sphere_fit(near.height)[0] / 1000
     assert radius_mm == pytest.approx(80.0, rel=2e-3)
 
-    pad = (surface.height.shape[0] - truth.shape[0]) // 2
-    window = (slice(pad, pad + truth.shape[0]), slice(pad, pad + truth.shape[1]))
-    crop = SkinSurface(truth, surface.p[window], surface.q[window], surface.normals[window], labels, surface.wrinkle_depth[window],
-                       surface.spec)
     lights = device.central_directions()
     ideal, _ = simulate_acquisition(crop, RenderSettings(lights=lights, effects=Effects.none(), noise=1.0), seed=1)
     ideal_error = _after_form(integrate_normals(photometric_stereo(ideal["red"][0], lights).normals, truth.spacing), truth)
@@ -187,3 +182,37 @@ def test_one_sphere_place_is_not_enough():
 
     with pytest.raises(Exception, match="two or more places"):
         led_positions_from_chrome_spheres([[np.zeros((8, 8))] * 4], paper_device(size_px=8).camera, 10.0)
+
+
+def _mitsuba():
+    try:
+        import mitsuba  # noqa: F401
+        import mitsuba_render
+    except ImportError as error:
+        pytest.skip(f"mitsuba (the second renderer) is not installed: {error}")
+    return mitsuba_render
+
+
+@pytest.mark.slow
+def test_a_second_renderer_confirms_the_near_field_solver():
+    """Mitsuba 3 renders the same forehead (mesh with smooth normals, direct light) through the
+    device (``perspective`` sensor, ``point`` emitters: isotropic LEDs, mu = 0) and, as the ideal,
+    by an orthographic camera under distant lights. As in our simulator, the near-field height is
+    as good as the ideal one after form removal (5.2 vs 5.9 um at 256 px, measured; ours 3.7 vs
+    2.8), within a factor of 1.5 and 2 um, and the radius within 0.5% (0.07%)."""
+    renderer = _mitsuba()
+    device = paper_device(size_px=256)
+    device = replace(device, leds=tuple(replace(led, mu=0.0) for led in device.leds))
+    spec = replace(preset_spec("forehead-moderate", size_px=256, pixel_um=device.pixel_um), form_shape="sphere",
+                   form_radius_mm=80.0, microrelief=False)
+    surface = device_surface(spec, device, seed=1)
+    truth = camera_grid_surface(surface, device)
+    albedo = (0.6, 0.45, 0.35)
+    through_device = renderer.render_device(surface.height.z, device.pixel_um, device, albedo, spp=16, seed=1)
+    near = near_field_photometric_stereo(through_device[0], device, "red")
+    lights = device.central_directions()
+    ideal_images = renderer.render(truth.height.z, device.pixel_um, lights, albedo, spp=16, max_depth=2, seed=1, face_normals=False)
+    ideal = integrate_normals(photometric_stereo(ideal_images[0], lights).normals, truth.height.spacing)
+    near_error, ideal_error = _after_form(near.height, truth.height), _after_form(ideal, truth.height)
+    assert near_error < 1.5 * ideal_error and near_error < ideal_error + 2.0, (near_error, ideal_error)
+    assert sphere_fit(near.height)[0] / 1000 == pytest.approx(80.0, rel=5e-3)

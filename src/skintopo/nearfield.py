@@ -52,6 +52,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.filters import block_mean
 from skintopo.height import fill_from_nearest, integrate_slopes
 from skintopo.heightmap import HeightMap
+from skintopo.normals import PhotometricStereoResult
 
 SCALES = ("photometric", "working-distance")
 SCALE_SAMPLE_STEP = 2  # the photometric scale is fitted on every 2nd pixel of every 2nd row (of the binned images)
@@ -73,10 +74,15 @@ class NearFieldResult:
         skin-plane grid of :func:`surface_grid`.
     depth_mm : ndarray (rows, columns)
         Depth of each camera pixel's point along the optical axis, mm; NaN where invalid.
-    normals, albedo : ndarray
-        Per camera pixel (camera frame); NaN where invalid.
+    normals, albedo, residual : ndarray
+        Per camera pixel (normals in the camera frame; residual relative, as
+        :func:`per_pixel_photometric_stereo` gives it); NaN where invalid.
+    used : ndarray of bool (m, rows, columns)
+        Which LEDs' observations entered each camera pixel's fit.
     valid : ndarray of bool
         Camera pixels with at least 3 usable LEDs.
+    sampling : tuple of ndarray
+        (row, column) of the camera image at each node of the skin-plane grid.
     changes_um : list of float
         RMS depth change per iteration (micrometres): the convergence record.
     scales : list of float
@@ -89,7 +95,10 @@ class NearFieldResult:
     depth_mm: np.ndarray
     normals: np.ndarray
     albedo: np.ndarray
+    residual: np.ndarray
+    used: np.ndarray
     valid: np.ndarray
+    sampling: tuple
     changes_um: list
     scales: list
     seconds: float
@@ -99,6 +108,25 @@ class NearFieldResult:
     def converged(self):
         """True when the last depth change was below the tolerance."""
         return bool(self.changes_um) and self.changes_um[-1] < self.options["tolerance_um"]
+
+    def stereo_on_surface_grid(self):
+        """The normals, albedo and residual resampled to the skin-plane grid of
+        :attr:`height` (bilinear; the normals renormalised, the LEDs used taken from the
+        nearest pixel), as a :class:`~skintopo.normals.PhotometricStereoResult`: what the
+        distant-light pipeline's later stages (spectral correction, report) take."""
+        row, column = self.sampling
+        inside = self.height.mask
+
+        def sample(values, order=1):
+            (filled,) = fill_from_nearest(self.valid, values) if not self.valid.all() else (values,)
+            out = scipy.ndimage.map_coordinates(np.asarray(filled, dtype=np.float64), [row, column], order=order, mode="nearest")
+            return np.where(inside, out, np.nan)
+
+        normals = np.stack([sample(self.normals[..., i]) for i in range(3)], axis=-1)
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+        used = np.stack([sample(u.astype(np.float64), order=0) > 0.5 for u in self.used]) & inside
+        return PhotometricStereoResult(normals.astype(np.float32), sample(self.albedo).astype(np.float32),
+                                       sample(self.residual).astype(np.float32), used.sum(axis=0).astype(np.int16), inside.copy(), used)
 
 
 def _light_matrices(device: Device, points, band):
@@ -209,7 +237,7 @@ def surface_grid(device: Device):
 
 def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_iterations=20):
     """Heights (um, toward the camera, 0 at the working distance) on :func:`surface_grid`
-    from per-pixel depths.
+    from per-pixel depths, and the (row, column) of the image each node was read at.
 
     Each node (x, y) is found on the image by the fixed point
     (column, row) = project(x, y, -d(column, row)), d read by bilinear interpolation; it
@@ -240,12 +268,12 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
     inside = (row >= 0) & (row <= rows - 1) & (column >= 0) & (column <= columns - 1)
     inside &= scipy.ndimage.map_coordinates(valid.astype(np.float32), [row, column], order=1, mode="constant") > 0.999
     z = (device.working_distance_mm - depth) * 1000
-    return HeightMap(np.where(inside, z, np.nan), device.pixel_um, inside)
+    return HeightMap(np.where(inside, z, np.nan), device.pixel_um, inside), (row, column)
 
 
 def near_field_photometric_stereo(images, device: Device, band, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION,
                                   scale="photometric", tolerance_um=DEFAULT_TOLERANCE_UM, max_iterations=30,
-                                  integrator=DEFAULT_INTEGRATOR, full_resolution_passes=None):
+                                  integrator=DEFAULT_INTEGRATOR, highlights=None, full_resolution_passes=None):
     """Normals, albedo and height from images taken under the device's LEDs (module notes).
 
     The alternation first runs to convergence on images binned to about 256 pixels across
@@ -264,8 +292,13 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         Camera pixels to reconstruct (default: all).
     scale : {"photometric", "working-distance"}
         How the constant of integration is fixed (module notes).
+    highlights : ndarray of bool (m, rows, columns), optional
+        Observations to leave out (e.g. :meth:`skintopo.normals.SpecularSeparation.highlights`).
     tolerance_um, max_iterations
         Stop when the RMS depth change is below ``tolerance_um``.
+    full_resolution_passes : int, optional
+        Stop the full-resolution stage after this many passes whatever the change (to
+        measure what the passes bring); default: to ``tolerance_um``.
 
     Returns
     -------
@@ -273,6 +306,8 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
     """
     start = time.perf_counter()
     images = np.asarray(images, dtype=np.float32)
+    if highlights is not None:
+        images = np.where(highlights, np.float32(np.nan), images)  # left out as saturated observations are
     m = len(device.leds)
     shape = tuple(device.camera.size_px)
     if images.ndim != 3 or images.shape[0] != m or images.shape[1:] != shape:
@@ -293,7 +328,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         crop = (slice(0, rows * factor), slice(0, columns * factor))
         binned = np.stack([block_mean(image[crop], factor) for image in images]).astype(np.float32)
         coarse_mask = block_mean(mask[crop].astype(float), factor) > 0.999
-        coarse_depth, _, _, coarse_changes, coarse_scales = _alternate(
+        coarse_depth, *_, coarse_changes, coarse_scales = _alternate(
             binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **settings)
         options["binned"] = {"factor": factor, "changes_um": coarse_changes, "scales": coarse_scales}
         known = np.isfinite(coarse_depth)
@@ -305,13 +340,19 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         scale = float(np.median(coarse_depth[known]))
     if factor > 1 and full_resolution_passes is not None:
         settings["max_iterations"] = full_resolution_passes
-    depth_map, g, valid, changes, scales = _alternate(images, device, mask, depth, scale, keep_shadows=factor > 1, **settings)
+    depth_map, g, residual, used, valid, changes, scales = _alternate(images, device, mask, depth, scale, keep_shadows=factor > 1,
+                                                                      **settings)
     options["iterations"] = len(changes)
     albedo = np.full(shape, np.nan, dtype=np.float32)
     normals = np.full((*shape, 3), np.nan, dtype=np.float32)
     albedo[mask] = np.sqrt(np.sum(g * g, axis=0))
     normals[mask] = (g / albedo[mask]).T
-    return NearFieldResult(resample_to_surface_grid(depth_map, device), depth_map, normals, albedo, valid, changes, scales,
+    residual_map = np.full(shape, np.nan, dtype=np.float32)
+    residual_map[mask] = residual
+    used_map = np.zeros((len(device.leds), *shape), bool)
+    used_map[:, mask] = used
+    height, sampling = resample_to_surface_grid(depth_map, device)
+    return NearFieldResult(height, depth_map, normals, albedo, residual_map, used_map, valid, sampling, changes, scales,
                            time.perf_counter() - start, options)
 
 
@@ -321,7 +362,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
     ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
     out (for a start close to the solution, where the light vectors change by a fraction of
-    a percent). Returns (depth map, g (3, P), valid map, changes_um, scales)."""
+    a percent). Returns (depth map, g (3, P), residual (P,), used (m, P), valid map,
+    changes_um, scales) of the last iteration."""
     shape = mask.shape
     w, w_u, w_v = _rays(device)
     rays = w[:, mask].astype(np.float32)
@@ -333,7 +375,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     changes, scales = [], []
     g = used = None
     for _ in range(max_iterations):
-        g, _, used_now = _normals_at(intensity, rays, depth, device, band, shadow_fraction, used)
+        g, residual, used_now = _normals_at(intensity, rays, depth, device, band, shadow_fraction, used)
         if keep_shadows:
             used = used_now
         n = np.full((3, *shape), np.nan, dtype=np.float32)
@@ -368,7 +410,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     valid[mask] = np.all(np.isfinite(g), axis=0)
     depth_map = np.full(shape, np.nan)
     depth_map[valid] = depth[valid[mask]]
-    return depth_map, g, valid, changes, scales
+    return depth_map, g, residual, used_now, valid, changes, scales
 
 
 def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction):

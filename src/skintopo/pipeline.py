@@ -208,6 +208,9 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         what = f"the spectral correction ({method})" if spectral else f"the height method {method!r}"
         raise SkinTopoError(f"{acquisition.source}: {what} needs {', '.join(needed[:-1]) + ' and ' + needed[-1] if len(needed) > 1 else needed[0]} "
                             f"images; missing {missing} (the acquisition has {sorted(acquisition.bands)})")
+    if method == PHYSICS and acquisition.device is not None:
+        raise SkinTopoError(f"{acquisition.source}: the physics height models distant lights; this acquisition has a device "
+                            "(near-field LEDs): measure a band or the spectral correction")
     if method == PHYSICS and not rgb_share_lights(acquisition):
         raise SkinTopoError(f"{acquisition.source}: the physics height needs red, green and blue images taken under the same lights, "
                             "in the same order")
@@ -217,8 +220,10 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
     albedo_band = "red" if "red" in results else next(iter(results))
     albedo = results[albedo_band].stereo.albedo
     if spectral:
+        # with a device the bands live on the skin-plane grid, where the camera's mask does not apply
+        mask = acquisition.mask if acquisition.device is None else np.logical_and.reduce([results[b].height.mask for b in REQUIRED_BANDS])
         correction = spectral_correction({b: results[b].stereo.normals for b in REQUIRED_BANDS}, acquisition.pixel_um, method=method,
-                                         mask=acquisition.mask, integrator=options.reconstruction.integrator,
+                                         mask=mask, integrator=options.reconstruction.integrator,
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:

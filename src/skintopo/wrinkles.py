@@ -198,7 +198,9 @@ def _joined_length(paths, spacing):
 def _run_beyond(depth, end, outward, threshold, spacing, reach_um):
     """How far (um, at most ``reach_um``) ``depth`` stays at or above ``threshold`` past a
     path's ``end``, straight along ``outward`` (pixels), sampled bilinearly every 0.25 pixel."""
-    step = np.asarray(outward, float) / max(np.hypot(*outward), 1e-12)
+    if not np.hypot(*outward) > 0:  # no direction to follow (a one-pixel path end)
+        return 0.0
+    step = np.asarray(outward, float) / np.hypot(*outward)
     pixel_um = np.hypot(step[0] * spacing[0], step[1] * spacing[1])
     t = np.arange(1, int(4 * reach_um / pixel_um) + 1) * 0.25
     samples = scipy.ndimage.map_coordinates(depth, [end[0] + t * step[0], end[1] + t * step[1]], order=1, mode="nearest")

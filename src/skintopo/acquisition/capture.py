@@ -46,6 +46,10 @@ class BandImages:
     files : tuple of str
         The image file of each row of ``images``.
     wavelength_nm : float or None
+    leds : tuple of str or None
+        With a device (:mod:`skintopo.device`), the LED of each image; ``lights`` then holds
+        the directions from the field centre to those LEDs (what a distant-light method
+        would assume).
     """
 
     band: str
@@ -53,6 +57,7 @@ class BandImages:
     lights: np.ndarray
     files: tuple
     wavelength_nm: float | None
+    leds: tuple | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +77,9 @@ class Acquisition:
         True when the folder carries no pixel size and a default was used.
     mask : ndarray of bool, shape (rows, columns)
         True where the skin (object) is measured.
+    device : skintopo.device.Device or None
+        The camera and near-field LEDs the images were taken with; None: distant lights and
+        an orthographic camera.
     """
 
     source: Path
@@ -80,6 +88,7 @@ class Acquisition:
     pixel_um: float
     pixel_um_assumed: bool
     mask: np.ndarray
+    device: object = None
 
     @property
     def shape(self):

@@ -26,14 +26,16 @@ from skintopo.acquisition.capture import (
     positive_number,
 )
 from skintopo.acquisition.images import ImageCache, read_mask
+from skintopo.device import DEVICE_NAME, DeviceError, read_device, write_device
 from skintopo.lights import check_light_directions
 from skintopo.acquisition.radiometry import full_scale_of, normalise
 
 
-_IMAGE_KEYS = {"file", "band", "light", "intensity", "wavelength_nm", "channel", "flat"}
+_IMAGE_KEYS = {"file", "band", "light", "led", "intensity", "wavelength_nm", "channel", "flat"}
 
 
-_MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description", "dark", "crosstalk"}
+_MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description", "dark", "crosstalk",
+                  "device"}
 
 
 def load_manifest(manifest_path, pixel_um, bands, saturation):
@@ -73,6 +75,19 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
             unmix = None
         if unmix is None:
             problems.append(f"{name}: field 'crosstalk' must be an invertible 3 x 3 matrix (camera channel rows, LED band columns)")
+    device = None
+    device_file = manifest.get("device")
+    if device_file is not None:
+        if not (isinstance(device_file, str) and device_file):
+            problems.append(f"{name}: field 'device' must name a device file (device.json)")
+        else:
+            try:
+                device = read_device(folder / device_file)
+            except DeviceError as error:
+                problems += [f"{device_file}: {problem}" for problem in error.problems]
+    if device is not None and positive_number(declared_pixel) and abs(declared_pixel / device.pixel_um - 1) > 1e-3:
+        problems.append(f"{name}: pixel_size_um is {declared_pixel} but the device's pixel footprint at its working distance is "
+                        f"{device.pixel_um:.6g} um")
     dark_file = manifest.get("dark")
     if dark_file is not None and not (isinstance(dark_file, str) and dark_file):
         problems.append(f"{name}: field 'dark' must name an image file")
@@ -100,7 +115,22 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
         if band not in BANDS:
             problems.append(f"{label}: field 'band' must be one of {list(BANDS)}, got {band!r}")
         light = entry.get("light")
-        if not (isinstance(light, list) and len(light) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in light)):
+        led = entry.get("led")
+        if device_file is not None:
+            # With a device the LED is named, and the light vector depends on the point lit.
+            if "light" in entry:
+                problems.append(f"{label}: with a 'device', name the image's LED ('led'), not a light direction ('light')")
+            if "flat" in entry:
+                problems.append(f"{label}: with a 'device', a per-light 'flat' is not used: the device models the LEDs' fall-off")
+            if device is not None:
+                names = [d.name for d in device.leds]
+                if led not in names:
+                    problems.append(f"{label}: field 'led' must name one of the device's LEDs {names}, got {led!r}")
+                else:
+                    light = device.central_directions()[names.index(led)].tolist()
+        elif led is not None:
+            problems.append(f"{label}: field 'led' needs a 'device' file in the manifest")
+        elif not (isinstance(light, list) and len(light) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in light)):
             problems.append(f"{label}: field 'light' must be a list of 3 numbers (unit vector x, y, z)")
             light = None
         intensity = entry.get("intensity", 1.0)
@@ -117,7 +147,7 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
             problems.append(f"{label}: field 'flat' must name an image file")
         elif flat is not None and "intensity" in entry:
             problems.append(f"{label}: give either 'flat' (the intensity is then measured) or 'intensity', not both")
-        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, None if flat is None else folder / flat))
+        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, None if flat is None else folder / flat, led))
 
     if problems:  # structure is wrong: do not read images yet, report what we have
         raise AcquisitionError(manifest_path, problems)
@@ -128,6 +158,9 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
         members = [p for p in parsed if p[0] == band]
         for problem in check_light_directions([p[2] for p in members], [p[6] for p in members]):
             problems.append(problem if problem.startswith(name) else f"{name}: band {band}: {problem}")
+        leds = [p[8] for p in members if p[8] is not None]
+        if len(set(leds)) != len(leds):
+            problems.append(f"{name}: band {band}: each LED may have one image per band, got {sorted(leds)}")
 
     cache = ImageCache(problems)
     dark = cache.get(folder / dark_file) if isinstance(dark_file, str) and dark_file else None
@@ -150,7 +183,7 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
     for band in wanted:
         members = [p for p in parsed if p[0] == band]
         images = []
-        for _, file, light, intensity, wavelength, channel, label, flat_file in members:
+        for _, file, light, intensity, wavelength, channel, label, flat_file, _ in members:
             image = cache.get(file)
             if image is None:
                 continue
@@ -174,7 +207,8 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
             lights = np.array([p[2] for p in members], dtype=np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):  # bad lights are already reported
                 lights /= np.linalg.norm(lights, axis=1, keepdims=True)
-            by_band[band] = BandImages(band, np.stack(images), lights, tuple(str(p[1]) for p in members), members[0][4])
+            leds = tuple(p[8] for p in members) if device is not None else None
+            by_band[band] = BandImages(band, np.stack(images), lights, tuple(str(p[1]) for p in members), members[0][4], leds)
 
     shape = cache.reference[1] if cache.reference else None
     mask = None
@@ -185,12 +219,17 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
             mask = read_mask(folder / manifest["mask"], shape, problems)
     if problems:
         raise AcquisitionError(manifest_path, problems)
+    if device is not None and shape is not None and tuple(shape) != tuple(device.camera.size_px):
+        problems.append(f"{name}: the images are {shape[0]} x {shape[1]} pixels but the device's camera has "
+                        f"{device.camera.size_px[0]} x {device.camera.size_px[1]}")
+    if problems:
+        raise AcquisitionError(manifest_path, problems)
     if mask is None:
         mask = np.ones(shape, dtype=bool)
-    return Acquisition(folder, "manifest", by_band, float(declared_pixel), False, mask)
+    return Acquisition(folder, "manifest", by_band, float(declared_pixel), False, mask, device)
 
 
-def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None):
+def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None, device=None):
     """Write images to an acquisition folder in the manifest format (16-bit PNG, linear).
 
     Parameters
@@ -210,6 +249,9 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     intensities : dict of str to float, optional
         Relative light intensity per band (the gain between radiance and recorded values),
         written to every image entry of the band.
+    device : skintopo.device.Device, optional
+        Written as ``device.json``; the images of each band are then one per LED, in the
+        device's order, and entries name their LED instead of a light direction.
 
     Returns
     -------
@@ -228,13 +270,19 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
             name = f"{band}_{index:02d}.png"
             counts = np.round(np.clip(np.nan_to_num(image), 0.0, 1.0) * 65535).astype(np.uint16)
             write_png(folder / name, counts)
-            entry = {"file": name, "band": band, "light": [round(float(v), 9) for v in light]}
+            if device is None:
+                entry = {"file": name, "band": band, "light": [round(float(v), 9) for v in light]}
+            else:
+                entry = {"file": name, "band": band, "led": device.leds[index].name}
             if intensities and band in intensities:
                 entry["intensity"] = float(intensities[band])
             if DEFAULT_WAVELENGTH_NM[band] is not None:
                 entry["wavelength_nm"] = DEFAULT_WAVELENGTH_NM[band]
             entries.append(entry)
     manifest = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "pixel_size_um": float(pixel_um)}
+    if device is not None:
+        write_device(folder / DEVICE_NAME, device)
+        manifest["device"] = DEVICE_NAME
     if description:
         manifest["description"] = description
     if mask is not None:

@@ -29,7 +29,11 @@ def run(args):
     if args.preset not in PRESETS:
         raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")
     check_output_folder(args.out, overwrite=args.overwrite)
-    spec = preset_spec(args.preset, size_px=args.size, pixel_um=args.pixel_um)
+    device = _device(args)
+    if device is None:
+        spec = preset_spec(args.preset, size_px=args.size, pixel_um=args.pixel_um)
+    else:  # the camera's size and its pixel footprint on the skin
+        spec = preset_spec(args.preset, size_px=device.camera.size_px, pixel_um=device.pixel_um)
     factors = dict(args.treat)
     unknown = sorted(i for i in factors if not 1 <= i <= len(spec.wrinkles))
     if unknown:
@@ -47,18 +51,37 @@ def run(args):
     settings = default_settings(skin=args.skin, optics=optics_profile(args.optics), effects=effects, noise=args.noise,
                                 saturate=args.saturate)
     started = time.perf_counter()
-    surface = make_surface(spec, seed=args.seed)
     capture_seed = args.seed if args.capture_seed is None else args.capture_seed
-    bands, info = simulate_acquisition(surface, settings, seed=capture_seed,
-                                       progress=lambda bands: shared.progress(bands, quiet=args.quiet, desc="render", total=3))
+    if device is None:
+        surface = make_surface(spec, seed=args.seed)
+        bands, info = simulate_acquisition(surface, settings, seed=capture_seed,
+                                           progress=lambda bands: shared.progress(bands, quiet=args.quiet, desc="render", total=3))
+    else:
+        from skintopo.synth.nearfield import camera_grid_surface, device_surface, simulate_device_acquisition
+
+        rendered = device_surface(spec, device, seed=args.seed)
+        images, info = simulate_device_acquisition(rendered, device, settings, seed=capture_seed)
+        surface = camera_grid_surface(rendered, device)
+        bands = {band: (stack, device.central_directions()) for band, stack in images.items()}
     write_synthetic_acquisition(args.out, surface, bands, settings=settings, seed=args.seed, info=info, overwrite=args.overwrite,
-                                capture_seed=capture_seed, manifest=not args.no_manifest)
+                                capture_seed=capture_seed, manifest=not args.no_manifest, device=device)
     shared.say(
         args,
         f"wrote {Path(args.out).resolve()}: preset {args.preset}, {args.skin} skin ({args.optics} optics), {spec.size_px[1]}x{spec.size_px[0]} px "
-        f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s",
+        f"at {spec.pixel_um:g} um, {len(spec.wrinkles)} wrinkle(s), {time.perf_counter() - started:.1f} s"
+        + ("" if device is None else f", through the device ({len(device.leds)} near-field LEDs, perspective camera)"),
     )
     return 0
+
+
+def _device(args):
+    """The device of ``--device``: ``paper`` (a paper-like device with a camera of --size
+    pixels) or a device file; None without the option."""
+    if args.device is None:
+        return None
+    from skintopo.device import paper_device, read_device
+
+    return paper_device(size_px=args.size) if args.device == "paper" else read_device(args.device)
 
 
 def _pair(text):
@@ -103,6 +126,10 @@ def add_parser(commands):
                        help="write the images without acquisition.json, as a camera would (then 'skintopo init' makes it)")
     synth.add_argument("--target", choices=CALIBRATION_TARGETS,
                        help="instead of skin: a calibration target under the same lights, sphere_1.png, ... for 'skintopo calibrate lights'")
+    synth.add_argument("--device", metavar="paper|DEVICE.JSON",
+                       help="render through a device: near-field LEDs and a perspective camera (paper: the paper-like device "
+                       "with a camera of --size pixels over 65 mm; or a device file); the pixel size is then the device's "
+                       "footprint on the skin and --pixel-um is not used")
     synth.add_argument("--no-interreflection", action="store_true", help="no light bouncing between skin points (wrinkles)")
     synth.add_argument("--single-bounce", action="store_true", help="one interreflection bounce instead of converged radiosity")
     synth.add_argument("--no-specular", action="store_true", help="no surface (specular) reflection")

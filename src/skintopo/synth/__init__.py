@@ -127,15 +127,17 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
 
 
 def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: RenderSettings, seed, info=None, overwrite=False,
-                                capture_seed=None, manifest=True):
+                                capture_seed=None, manifest=True, device=None):
     """Write an acquisition folder plus ``ground_truth/`` (height.x3p, normals.npy,
     wrinkles.png with wrinkle ids, surface.json), all or nothing. ``seed`` made the surface,
     ``capture_seed`` (default: the same) the sensor noise. ``manifest=False`` leaves out
-    ``acquisition.json``: the images as a camera writes them, for ``skintopo init``."""
+    ``acquisition.json``: the images as a camera writes them, for ``skintopo init``. With a
+    ``device`` (:mod:`skintopo.synth.nearfield`), ``device.json`` is written and the images
+    name their LEDs; ``surface`` is then the truth on the camera's grid."""
     with staged_output_folder(out, overwrite=overwrite) as staging:
         write_acquisition(
             staging, bands, surface.spec.pixel_um, mask=np.ones(surface.height.shape, bool),
-            description="skintopo synthetic skin acquisition", intensities=(info or {}).get("exposure_gain"),
+            description="skintopo synthetic skin acquisition", intensities=(info or {}).get("exposure_gain"), device=device,
         )
         truth = staging / "ground_truth"
         truth.mkdir()
@@ -150,7 +152,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
             "render": {
                 "skin": settings.skin,
                 "optics": settings.optics.describe(),
-                "lights": np.asarray(settings.lights).tolist(),
+                "lights": np.asarray(settings.lights).tolist() if device is None else "the device's LEDs (device.json)",
                 "effects": asdict(settings.effects),
                 "interreflection_radius_um": settings.interreflection_radius_um,
                 "n_azimuth": settings.n_azimuth,

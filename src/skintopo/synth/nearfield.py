@@ -12,8 +12,9 @@ marched along the direction from the field centre to each LED (an approximation)
 
 The grid is wider than the image by ``margin`` so that a surface falling away from the camera
 (a curved forehead) still fills the image. The ground truth of a device acquisition is the
-central part of that grid, on the grid the near-field solver returns
-(:func:`skintopo.nearfield.surface_grid`): spacing D pitch / f, centred on the optical axis.
+central part of that grid (:func:`camera_grid_surface`), on the grid the near-field solver
+returns (:func:`skintopo.nearfield.surface_grid`): spacing D pitch / f, centred on the
+optical axis.
 """
 
 from __future__ import annotations
@@ -61,14 +62,16 @@ def device_surface(spec: SurfaceSpec, device: Device, *, seed=0, margin=DEFAULT_
     return make_surface(replace(spec, size_px=(rows + 2 * pad, columns + 2 * pad), pixel_um=device.pixel_um), seed=seed)
 
 
-def truth_on_camera_grid(surface: SkinSurface, device: Device):
+def camera_grid_surface(surface: SkinSurface, device: Device) -> SkinSurface:
     """The ground truth on the grid the near-field solver returns: the central image-size
-    part of the rendered grid (same spacing, same centre)."""
+    part of the rendered grid (same spacing, same centre), heights, slopes, normals and
+    wrinkle labels alike."""
     rows, columns = device.camera.size_px
     top = (surface.height.shape[0] - rows) // 2
     left = (surface.height.shape[1] - columns) // 2
     window = (slice(top, top + rows), slice(left, left + columns))
-    return HeightMap(surface.height.z[window], surface.height.spacing), surface.wrinkle_labels[window]
+    return SkinSurface(HeightMap(surface.height.z[window], surface.height.spacing), surface.p[window], surface.q[window],
+                       surface.normals[window], surface.wrinkle_labels[window], surface.wrinkle_depth[window], surface.spec)
 
 
 def camera_sample_points(height: HeightMap, device: Device, iterations=12):
