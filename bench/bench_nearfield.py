@@ -12,23 +12,25 @@ band, scored against the raw geometry:
 Scores: RMS height error after removing its mean ("raw"), and after removing its best-fitting
 quadratic ("after form": the error left in the wrinkle band, what form removal would not take
 away; the truth itself is not processed); the forehead radius from a least-squares sphere
-(:func:`skintopo.filters.sphere_fit`) of the reconstruction; the wrinkles' max depth.
+(:func:`skintopo.filters.sphere_fit`) of the reconstruction.
 Speed: 12 images (3 bands x 4 LEDs) of 1000 x 1000 through the near-field solver against the
 distant-light one (normals + integration per band).
 
-Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``.
+Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``;
+``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band].json.
 """
 
 import argparse
+import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.device import paper_device
-from skintopo.evaluation import wrinkle_max_depths
 from skintopo.filters import polynomial_form, sphere_fit
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
@@ -49,22 +51,18 @@ def device_scene(size, seed=1):
     return device, device_surface(spec, device, seed=seed)
 
 
-def scores(height: HeightMap, truth: HeightMap, labels):
+def scores(height: HeightMap, truth: HeightMap):
     error = height.z - truth.z
     valid = np.isfinite(error) & height.mask
     error = np.where(valid, error, np.nan)
     form = polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid)
     radius_um, _ = sphere_fit(height)
-    found = wrinkle_max_depths(HeightMap(np.where(valid, height.z, np.nan), truth.spacing, valid), labels)
-    true = wrinkle_max_depths(truth, labels)
     return {
         "rms_raw_um": float(np.sqrt(np.nanmean((error - np.nanmean(error)) ** 2))),
         "rms_after_form_um": float(np.sqrt(np.nanmean((error - form)[valid] ** 2))),
         "mean_offset_um": float(np.nanmean(error)),
         "radius_mm": radius_um / 1000,
         "radius_error_percent": 100 * (radius_um / 1000 / RADIUS_MM - 1),
-        "wrinkle_max_depth_um": [round(float(v), 2) for v in found],
-        "true_wrinkle_max_depth_um": [round(float(v), 2) for v in true],
         "valid_fraction": float(valid.mean()),
     }
 
@@ -74,6 +72,33 @@ def distant_reconstruction(images, lights, spacing):
     return integrate_normals(stereo.normals, spacing)
 
 
+def mitsuba_check(size, spp=16):
+    """The same comparison on Mitsuba 3 renders (tests/mitsuba_render.py): the device with
+    isotropic LEDs (Mitsuba's point emitters, mu = 0), perspective sensor, and the ideal
+    orthographic / distant-light render; direct light, smooth mesh normals. Ours alongside."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    import mitsuba_render
+
+    device, surface = device_scene(size)
+    device = replace(device, leds=tuple(replace(led, mu=0.0) for led in device.leds))
+    crop = camera_grid_surface(surface, device)
+    lights, albedo = device.central_directions(), (0.6, 0.45, 0.35)
+    result = {"size_px": size, "spp": spp, "renderers": {}}
+    start = time.perf_counter()
+    mitsuba_near = mitsuba_render.render_device(surface.height.z, device.pixel_um, device, albedo, spp=spp, seed=1)[0]
+    mitsuba_ideal = mitsuba_render.render(crop.height.z, device.pixel_um, lights, albedo, spp=spp, max_depth=2, seed=1, face_normals=False)[0]
+    result["seconds_mitsuba"] = time.perf_counter() - start
+    settings = RenderSettings(effects=Effects.none(), noise=1.0)
+    ours_near = simulate_device_acquisition(surface, device, settings, seed=1)[0]["red"]
+    ours_ideal = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)[0]["red"][0]
+    for name, near_images, ideal_images in (("mitsuba", mitsuba_near, mitsuba_ideal), ("skintopo", ours_near, ours_ideal)):
+        near = scores(near_field_photometric_stereo(near_images, device, "red").height, crop.height)
+        ideal = scores(distant_reconstruction(ideal_images, lights, crop.height.spacing), crop.height)
+        result["renderers"][name] = {"near_field": near, "ideal": ideal,
+                                     "near_over_ideal_after_form": near["rms_after_form_um"] / ideal["rms_after_form_um"]}
+    write_result(f"nearfield-mitsuba-{size}", result)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=1000, help="camera pixels across (the field stays 65 mm)")
@@ -81,14 +106,17 @@ def main():
                         help="lambertian: diffuse only; skin: + translucency, highlights, cast shadows (no interreflection)")
     parser.add_argument("--highlights", choices=["none", "cross-band"], default="none",
                         help="cross-band: every reconstruction solves the dichromatic diffuse images (images minus their specular part)")
+    parser.add_argument("--mitsuba", action="store_true", help="the comparison on Mitsuba 3 renders instead (mitsuba-SIZE.json)")
     args = parser.parse_args()
+    if args.mitsuba:
+        return mitsuba_check(args.size)
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
     start = time.perf_counter()
     bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
     seconds_render = time.perf_counter() - start
     crop = camera_grid_surface(surface, device)
-    truth, labels = crop.height, crop.wrinkle_labels
+    truth = crop.height
     lights = device.central_directions()
     ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
 
@@ -100,13 +128,13 @@ def main():
         ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
             * ideal_info["exposure_gain"]["red"]
     result["highlights"] = args.highlights
-    result["ideal"] = scores(distant_reconstruction(ideal_red, lights, truth.spacing), truth, labels)
+    result["ideal"] = scores(distant_reconstruction(ideal_red, lights, truth.spacing), truth)
     near = near_field_photometric_stereo(red, device, "red")
-    result["near_field"] = scores(near.height, truth, labels)
+    result["near_field"] = scores(near.height, truth)
     result["near_field"]["iterations"] = near.options["iterations"]
     result["near_field"]["changes_um"] = near.changes_um
     result["near_field"]["binned"] = near.options.get("binned")
-    result["distant_solver"] = scores(distant_reconstruction(red, lights, truth.spacing), truth, labels)
+    result["distant_solver"] = scores(distant_reconstruction(red, lights, truth.spacing), truth)
     result["difference_after_form_um"] = result["near_field"]["rms_after_form_um"] - result["ideal"]["rms_after_form_um"]
 
     # speed: 12 images, three bands; the distant-light time on the ideal scene's images (where

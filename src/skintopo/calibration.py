@@ -35,6 +35,7 @@ from skintopo.device import Camera, Device, Led, aimed_at, check_device
 from skintopo.errors import SkinTopoError
 
 HIGHLIGHT_LEVEL = 0.9
+NEAR_HIGHLIGHT_LEVEL = 0.2  # near-field LED calibration: the spot's flanks too (a saturated plateau above 0.9 is a few pixels)
 MIN_SPHERE_FRACTION = 0.005
 MAX_SATURATED_FRACTION = 0.2
 
@@ -103,8 +104,10 @@ def sphere_region(images, mask=None):
     return region
 
 
-def highlight_centroid(image, sphere, *, name="image", saturation=None):
-    """Sub-pixel (x, y) of the specular highlight inside the sphere."""
+def highlight_centroid(image, sphere, *, name="image", saturation=None, level=HIGHLIGHT_LEVEL):
+    """Sub-pixel (x, y) of the specular highlight inside the sphere: the centroid of the
+    pixels above ``level`` of the way from the sphere's median to its peak, weighted by how
+    far above they are."""
     cx, cy, r = sphere
     grey = _grey(image)
     rows, columns = np.indices(grey.shape)
@@ -116,7 +119,7 @@ def highlight_centroid(image, sphere, *, name="image", saturation=None):
     background = np.median(values)
     if not peak > 3 * max(background, 1e-12):
         raise SkinTopoError(f"{name}: no specular highlight on the sphere (brightest {peak:.4g} vs median {background:.4g})")
-    level = background + HIGHLIGHT_LEVEL * (peak - background)
+    level = background + level * (peak - background)
     spot = inside & (grey >= level)
     labels, _ = scipy.ndimage.label(spot)
     brightest = labels[np.unravel_index(np.argmax(np.where(inside, grey, -np.inf)), grey.shape)]
@@ -165,6 +168,29 @@ def matte_sphere_light(image, sphere, *, name="image", lit_fraction=0.1):
     return g / strength, strength
 
 
+def read_grey_images(paths):
+    """Grey images as fractions of full scale (integer images divided by their type's
+    maximum), all of one size, and each one's full scale (None for float images)."""
+    raw = [read_image(path) for path in paths]
+    full_scale = [float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else None for image in raw]
+    images = [_grey(image) / (scale or 1.0) for image, scale in zip(raw, full_scale)]
+    shapes = {image.shape for image in images}
+    if len(shapes) > 1:
+        raise SkinTopoError(f"calibration images differ in size: {sorted(shapes)}")
+    return images, full_scale
+
+
+def folder_images(folder):
+    """The PNG and TIFF files of a folder, sorted by name (one per LED, in LED order)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SkinTopoError(f"{folder}: no such folder")
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff"))
+    if not paths:
+        raise SkinTopoError(f"{folder}: no PNG or TIFF images")
+    return paths
+
+
 def calibrate_lights(paths, *, mask=None, method="chrome", saturation=0.995):
     """Light directions (and, for a matte sphere, relative intensities) from sphere images.
 
@@ -186,12 +212,7 @@ def calibrate_lights(paths, *, mask=None, method="chrome", saturation=0.995):
         raise SkinTopoError(f"unknown sphere method {method!r}; choose chrome or matte")
     if not paths:
         raise SkinTopoError("no sphere images given")
-    raw = [read_image(path) for path in paths]
-    full_scale = [float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else None for image in raw]
-    images = [_grey(image) / (scale or 1.0) for image, scale in zip(raw, full_scale)]
-    shapes = {image.shape for image in images}
-    if len(shapes) > 1:
-        raise SkinTopoError(f"sphere images differ in size: {sorted(shapes)}")
+    images, full_scale = read_grey_images(paths)
     if mask is not None and not isinstance(mask, np.ndarray):
         mask_image = read_image(mask)
         mask = (mask_image.any(axis=2) if mask_image.ndim == 3 else mask_image > 0)
@@ -295,8 +316,9 @@ def led_positions_from_chrome_spheres(image_sets, camera: Camera, radius_mm, *, 
         centre = sphere_centre_from_silhouette(region, camera, radius_mm)
         circle = find_sphere(images, region)
         centres.append(centre)
-        rays.append([mirror_ray(camera, highlight_centroid(image, circle, name=f"place {place}, LED {i + 1}", saturation=saturation),
-                                centre, radius_mm) for i, image in enumerate(images)])
+        rays.append([mirror_ray(camera, highlight_centroid(image, circle, name=f"place {place}, LED {i + 1}", saturation=saturation,
+                                                           level=NEAR_HIGHLIGHT_LEVEL), centre, radius_mm)
+                     for i, image in enumerate(images)])
     positions, misses = [], []
     for led in range(counts.pop()):
         point, miss = closest_point_to_lines([r[led][0] for r in rays], [r[led][1] for r in rays])

@@ -1,10 +1,12 @@
-"""``skintopo calibrate lights``: light directions from spheres."""
+"""``skintopo calibrate lights``: light directions from spheres; ``skintopo calibrate leds``: a
+device's near-field LEDs from a chrome sphere at two or more places and a flat target."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from skintopo.cli import options as shared
+from skintopo.errors import SkinTopoError
 
 
 def run(args):
@@ -24,6 +26,33 @@ def run(args):
     return 0
 
 
+def run_leds(args):
+    from skintopo.calibration import calibrate_device, folder_images, read_grey_images
+    from skintopo.device import read_device, write_device
+    from skintopo.outputs import check_output_file
+
+    design = read_device(args.device)
+    places = [folder_images(place) for place in args.place]
+    flat = folder_images(args.flat) if args.flat else None
+    check_output_file(args.out, overwrite=args.overwrite, inputs=[args.device, *[p for paths in places for p in paths], *(flat or [])])
+    for place, paths in zip(args.place, places):
+        if len(paths) != len(design.leds):
+            raise SkinTopoError(f"{place}: {len(paths)} images for the {len(design.leds)} LEDs of {args.device}: one per LED, in LED order")
+    device, details = calibrate_device(design.camera, design.working_distance_mm, [read_grey_images(paths)[0] for paths in places],
+                                       args.sphere_radius_mm, flat_images=read_grey_images(flat)[0] if flat else None,
+                                       flat_depth_mm=args.flat_depth_mm, names=[led.name for led in design.leds])
+    output = Path(args.out)
+    tmp = output.with_name(output.name + ".partial")
+    write_device(tmp, device)
+    tmp.replace(output)
+    if not args.quiet:
+        for led, miss in zip(device.leds, details["ray_miss_rms_mm"]):
+            x, y, z = led.position_mm
+            print(f"{led.name:<10} at ({x:+8.2f}, {y:+8.2f}, {z:+8.2f}) mm, mu {led.mu:.2f}, rays miss by {miss:.2f} mm RMS")
+        print(f"wrote {output.resolve()}")
+    return 0
+
+
 def add_parser(commands):
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")
@@ -34,3 +63,18 @@ def add_parser(commands):
     lights.add_argument("-o", "--out", type=Path, required=True, help="lights.json to write")
     shared.add_output_switches(lights)
     lights.set_defaults(handler=run)
+    leds = calibrate_commands.add_parser("leds", help="near-field LED positions (chrome sphere at two or more places), "
+                                         "their axes, fall-off mu and intensities (flat matte target): writes a device file")
+    leds.add_argument("device", type=Path, help="device file with the camera and the working distance (its LED positions: the "
+                      "design values, replaced; its LED names and order are kept)")
+    leds.add_argument("--place", type=Path, action="append", required=True, metavar="FOLDER",
+                      help="a folder of chrome-sphere images, one per LED in LED order (file names sorted); give two or more")
+    leds.add_argument("--sphere-radius-mm", type=shared.positive_float, required=True, help="the chrome sphere's radius in mm")
+    leds.add_argument("--flat", type=Path, metavar="FOLDER", help="a folder of flat matte target images, one per LED, "
+                      "corrected for the camera's vignetting: LED axes, mu and relative intensities (default: aimed at the "
+                      "field centre, mu 1, equal)")
+    leds.add_argument("--flat-depth-mm", type=shared.positive_float, help="distance of the flat target along the optical axis "
+                      "(default: the working distance)")
+    leds.add_argument("-o", "--out", type=Path, required=True, help="device file to write")
+    shared.add_output_switches(leds)
+    leds.set_defaults(handler=run_leds)

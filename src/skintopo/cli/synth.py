@@ -17,6 +17,14 @@ def run(args):
     from skintopo.synth import (PRESETS, Effects, default_settings, make_surface, optics_profile, preset_spec, simulate_acquisition,
                                 write_synthetic_acquisition)
 
+    if args.target is not None and args.device is not None:
+        from skintopo.synth.nearfield import write_device_targets
+
+        check_output_folder(args.out, overwrite=args.overwrite)
+        write_device_targets(args.out, _device(args), seed=args.seed, overwrite=args.overwrite)
+        shared.say(args, f"wrote {Path(args.out).resolve()}: a chrome sphere at two places (place_1/, place_2/) and a flat "
+                         "target (flat/) through the device, design.json to calibrate, the true device in ground_truth.json")
+        return 0
     if args.target is not None:
         from skintopo.synth.targets import write_sphere_target
 
@@ -125,7 +133,8 @@ def add_parser(commands):
     synth.add_argument("--no-manifest", action="store_true",
                        help="write the images without acquisition.json, as a camera would (then 'skintopo init' makes it)")
     synth.add_argument("--target", choices=CALIBRATION_TARGETS,
-                       help="instead of skin: a calibration target under the same lights, sphere_1.png, ... for 'skintopo calibrate lights'")
+                       help="instead of skin: a calibration target under the same lights, sphere_1.png, ... for 'skintopo calibrate "
+                       "lights'; with --device: the chrome sphere at two places and a flat target for 'skintopo calibrate leds'")
     synth.add_argument("--device", metavar="paper|DEVICE.JSON",
                        help="render through a device: near-field LEDs and a perspective camera (paper: the paper-like device "
                        "with a camera of --size pixels over 65 mm; or a device file); the pixel size is then the device's "

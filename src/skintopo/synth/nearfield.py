@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import scipy.ndimage
@@ -171,3 +172,36 @@ def device_flat_images(device: Device, depth_mm, *, albedo=0.7, noise=0.003, see
     shading *= 0.8 / shading.max()
     rng = np.random.default_rng(seed)
     return list(np.clip(shading + noise * rng.standard_normal(shading.shape), 0.0, 1.0))
+
+
+SPHERE_PLACES_MM = ((-18.0, 12.0, -148.0), (18.0, -12.0, -143.0))  # the chrome sphere's centres in the rehearsal (in the depth of field)
+SPHERE_RADIUS_MM = 10.0
+
+
+def write_device_targets(out, device: Device, *, seed=0, overwrite=False):
+    """A calibration rehearsal for ``skintopo calibrate leds``: the chrome sphere (radius 10
+    mm) at two places (``place_1/``, ``place_2/``) and a flat matte target at the working
+    distance (``flat/``), one 16-bit image per LED each (``01_east.png``, ...: sorted in LED order), rendered through a device whose
+    LEDs differ from ``device`` (the design, written as ``design.json``) by a few millimetres,
+    with mu 1.3 and unequal intensities; the true device in ``ground_truth.json``."""
+    from skintopo.device import write_device
+    from skintopo.formats import write_png
+    from skintopo.outputs import staged_output_folder
+
+    rng = np.random.default_rng(seed)
+    true_leds = tuple(replace(led, position_mm=tuple(float(c) for c in np.add(led.position_mm, rng.uniform(-3, 3, 3))), mu=1.3,
+                              intensity={band: float(share) for band in ("red", "green", "blue")})
+                      for led, share in zip(device.leds, rng.uniform(0.8, 1.0, len(device.leds))))
+    truth = replace(device, leds=true_leds, description="the true device of this rehearsal")
+    with staged_output_folder(out, overwrite=overwrite) as staging:
+        for place, centre in enumerate(SPHERE_PLACES_MM, start=1):
+            folder = staging / f"place_{place}"
+            folder.mkdir()
+            for i, (led, image) in enumerate(zip(device.leds, device_sphere_images(truth, centre, SPHERE_RADIUS_MM, seed=seed + place))):
+                write_png(folder / f"{i + 1:02d}_{led.name}.png", np.round(image * 65535).astype(np.uint16))
+        (staging / "flat").mkdir()
+        for i, (led, image) in enumerate(zip(device.leds, device_flat_images(truth, truth.working_distance_mm, seed=seed))):
+            write_png(staging / "flat" / f"{i + 1:02d}_{led.name}.png", np.round(image * 65535).astype(np.uint16))
+        write_device(staging / "design.json", device)
+        write_device(staging / "ground_truth.json", truth)
+    return Path(out)
