@@ -46,8 +46,7 @@ EFFECTS = {"lambertian": Effects.none(), "skin": Effects(interreflection=False)}
 
 def device_scene(size, seed=1):
     device = paper_device(size_px=size)
-    spec = replace(preset_spec("forehead-moderate", size_px=size, pixel_um=device.pixel_um), form_shape="sphere",
-                   form_radius_mm=RADIUS_MM, furrow_width_um=3 * device.pixel_um, plate_um=20 * device.pixel_um)
+    spec = replace(preset_spec("forehead-moderate", size_px=size, pixel_um=device.pixel_um), form_shape="sphere", form_radius_mm=RADIUS_MM)
     return device, device_surface(spec, device, seed=seed)
 
 

@@ -57,10 +57,15 @@ def near_lighting(height: HeightMap, device: Device):
 
 def device_surface(spec: SurfaceSpec, device: Device, *, seed=0, margin=DEFAULT_MARGIN) -> SkinSurface:
     """A synthetic surface on the grid a device renders: the device's pixel footprint at the
-    working distance, the image size plus ``margin`` on each side."""
+    working distance, the image size plus ``margin`` on each side. The microrelief is
+    resolved at that sampling: furrows at least 3 pixels wide and plates at least 20 pixels
+    (the skin's 70 um furrows would alias on a 65 um pixel: a point-sampled render of them is
+    noise no camera lens would pass)."""
     rows, columns = device.camera.size_px
     pad = int(np.ceil(margin * max(rows, columns)))
-    return make_surface(replace(spec, size_px=(rows + 2 * pad, columns + 2 * pad), pixel_um=device.pixel_um), seed=seed)
+    pixel = device.pixel_um
+    return make_surface(replace(spec, size_px=(rows + 2 * pad, columns + 2 * pad), pixel_um=pixel,
+                                furrow_width_um=max(spec.furrow_width_um, 3 * pixel), plate_um=max(spec.plate_um, 20 * pixel)), seed=seed)
 
 
 def camera_grid_surface(surface: SkinSurface, device: Device) -> SkinSurface:
