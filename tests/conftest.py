@@ -27,6 +27,17 @@ def diligent_ball():
 
 
 @pytest.fixture
+def mitsuba_renderer():
+    """tests/mitsuba_render.py, the second renderer (Mitsuba 3); skips when mitsuba is absent."""
+    try:
+        import mitsuba  # noqa: F401
+        import mitsuba_render
+    except ImportError as error:
+        pytest.skip(f"mitsuba (the second renderer) is not installed: {error}")
+    return mitsuba_render
+
+
+@pytest.fixture
 def lambertian_acquisition(tmp_path):
     """A 12-image (4 lights x red/green/blue) 16-bit acquisition of an analytic surface."""
     z, p, q = paraboloid_with_wrinkles(shape=(48, 64), spacing=10.0)

@@ -186,23 +186,14 @@ def test_one_sphere_place_is_not_enough():
         led_positions_from_chrome_spheres([[np.zeros((8, 8))] * 4], paper_device(size_px=8).camera, 10.0)
 
 
-def _mitsuba():
-    try:
-        import mitsuba  # noqa: F401
-        import mitsuba_render
-    except ImportError as error:
-        pytest.skip(f"mitsuba (the second renderer) is not installed: {error}")
-    return mitsuba_render
-
-
 @pytest.mark.slow
-def test_a_second_renderer_confirms_the_near_field_solver():
+def test_a_second_renderer_confirms_the_near_field_solver(mitsuba_renderer):
     """Mitsuba 3 renders the same forehead (mesh with smooth normals, direct light) through the
     device (``perspective`` sensor, ``point`` emitters: isotropic LEDs, mu = 0) and, as the ideal,
     by an orthographic camera under distant lights. As in our simulator, the near-field height is
     as good as the ideal one after form removal (5.2 vs 5.9 um at 256 px, measured; ours 3.7 vs
     2.8), within a factor of 1.5 and 2 um, and the radius within 0.5% (0.07%)."""
-    renderer = _mitsuba()
+    renderer = mitsuba_renderer
     device = paper_device(size_px=256)
     device = replace(device, leds=tuple(replace(led, mu=0.0) for led in device.leds))
     spec = replace(preset_spec("forehead-moderate", size_px=256, pixel_um=device.pixel_um), form_shape="sphere",

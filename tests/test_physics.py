@@ -156,22 +156,13 @@ def test_physics_needs_red_green_and_blue_under_the_same_lights():
 
 
 
-def _mitsuba():
-    try:
-        import mitsuba_render
-        import mitsuba  # noqa: F401
-    except ImportError as error:
-        pytest.skip(f"mitsuba (the second renderer) is not installed: {error}")
-    return mitsuba_render
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("case", ["diffuse", "diffuse+scattering"])
-def test_physics_on_path_traced_renders_of_a_second_renderer(case):
+def test_physics_on_path_traced_renders_of_a_second_renderer(case, mitsuba_renderer):
     """Mitsuba 3 path-traces a wrinkled height field (8 bounces); the scattering case blurs
     each band with an exponential kernel (the simulator's is Gaussian). Physics must beat
     every band and the paper, and remove at least 60% of red's error."""
-    renderer = _mitsuba()
+    renderer = mitsuba_renderer
     surface = make_surface(preset_spec("forehead-moderate", size_px=128), seed=4)
     lights = default_lights()
     rgb = renderer.render(surface.height.z, 20.0, lights, (0.6, 0.41, 0.33), spp=32, seed=1)

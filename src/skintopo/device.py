@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skintopo.errors import SkinTopoError
+from skintopo.errors import SkinTopoError, header_problems
 from skintopo.lights import check_light_directions
 
 FORMAT_NAME = "skintopo-device"
@@ -321,15 +321,9 @@ def check_device(device: Device):
 def parse_device(data, source="device"):
     """A :class:`Device` from the device file's content (a dict), checked; every problem
     is reported at once (:class:`DeviceError`), and unit warnings are issued."""
-    problems = []
     if not isinstance(data, dict):
         raise DeviceError(source, ["the device file must hold a JSON object"])
-    for key in sorted(set(data) - _DEVICE_KEYS):
-        problems.append(f"unknown field {key!r}")
-    if data.get("format") != FORMAT_NAME:
-        problems.append(f"field 'format' must be {FORMAT_NAME!r}, got {data.get('format')!r}")
-    if data.get("version") != FORMAT_VERSION:
-        problems.append(f"field 'version' must be {FORMAT_VERSION}, got {data.get('version')!r}")
+    problems = header_problems(data, _DEVICE_KEYS, FORMAT_NAME, FORMAT_VERSION)
     working = data.get("working_distance_mm")
     if not _number(working):
         problems.append(f"field 'working_distance_mm' must be a number of millimetres, got {working!r}")

@@ -26,3 +26,15 @@ class AcquisitionError(SkinTopoError):
         self.problems = list(problems)
         lines = "\n".join(f"  - {p}" for p in self.problems)
         super().__init__(f"{self.source}: {len(self.problems)} problem(s) in the acquisition:\n{lines}")
+
+
+def header_problems(data, known_keys, format_name, version, prefix=""):
+    """The problems of a JSON file's top level that every skintopo format shares: unknown
+    fields (typos), and the ``format`` name and ``version`` this reader understands. Each
+    message starts with ``prefix``."""
+    problems = [f"{prefix}unknown field {key!r}" for key in sorted(set(data) - set(known_keys))]
+    if data.get("format") != format_name:
+        problems.append(f"{prefix}field 'format' must be {format_name!r}, got {data.get('format')!r}")
+    if data.get("version") != version:
+        problems.append(f"{prefix}field 'version' must be {version} (this reader's format), got {data.get('version')!r}")
+    return problems

@@ -273,7 +273,7 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
 
 def near_field_photometric_stereo(images, device: Device, band, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION,
                                   scale="photometric", tolerance_um=DEFAULT_TOLERANCE_UM, max_iterations=30,
-                                  integrator=DEFAULT_INTEGRATOR, highlights=None, full_resolution_passes=None):
+                                  integrator=DEFAULT_INTEGRATOR, highlights=None):
     """Normals, albedo and height from images taken under the device's LEDs (module notes).
 
     The alternation first runs to convergence on images binned to about 256 pixels across
@@ -296,9 +296,6 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         Observations to leave out (e.g. :meth:`skintopo.normals.SpecularSeparation.highlights`).
     tolerance_um, max_iterations
         Stop when the RMS depth change is below ``tolerance_um``.
-    full_resolution_passes : int, optional
-        Stop the full-resolution stage after this many passes whatever the change (to
-        measure what the passes bring); default: to ``tolerance_um``.
 
     Returns
     -------
@@ -338,8 +335,6 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         position = [(v - (factor - 1) / 2) / factor, (u - (factor - 1) / 2) / factor]
         depth = scipy.ndimage.map_coordinates(fill_from_nearest(known, coarse_depth)[0], position, order=1, mode="nearest")
         scale = float(np.median(coarse_depth[known]))
-    if factor > 1 and full_resolution_passes is not None:
-        settings["max_iterations"] = full_resolution_passes
     depth_map, g, residual, used, valid, changes, scales = _alternate(images, device, mask, depth, scale, keep_shadows=factor > 1,
                                                                       **settings)
     options["iterations"] = len(changes)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.defaults import DEFAULT_SATURATION
-from skintopo.errors import AcquisitionError, SkinTopoError
+from skintopo.errors import AcquisitionError, SkinTopoError, header_problems
 from skintopo.formats import fsync_path, write_png
 from skintopo.acquisition.capture import (
     BANDS,
@@ -44,16 +44,10 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
         manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise AcquisitionError(manifest_path, [f"not valid JSON ({exc})"]) from None
-    problems = []
     name = manifest_path.name
     if not isinstance(manifest, dict):
         raise AcquisitionError(manifest_path, ["the manifest must be a JSON object"])
-    for key in sorted(set(manifest) - _MANIFEST_KEYS):
-        problems.append(f"{name}: unknown field {key!r}")
-    if manifest.get("format") != FORMAT_NAME:
-        problems.append(f"{name}: field 'format' must be {FORMAT_NAME!r}, got {manifest.get('format')!r}")
-    if manifest.get("version") != FORMAT_VERSION:
-        problems.append(f"{name}: field 'version' must be {FORMAT_VERSION} (this reader's format), got {manifest.get('version')!r}")
+    problems = header_problems(manifest, _MANIFEST_KEYS, FORMAT_NAME, FORMAT_VERSION, prefix=f"{name}: ")
     declared_pixel = manifest.get("pixel_size_um")
     if not positive_number(declared_pixel):
         problems.append(f"{name}: field 'pixel_size_um' must be a positive number of micrometres, got {declared_pixel!r}")
