@@ -76,20 +76,22 @@ def band_images(acquisition: Acquisition, band, separation=None):
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None):
+                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None, start=None):
     """Photometric stereo and integration for one band of ``acquisition``.
 
     ``highlights="cross-band"`` leaves out the observations that :func:`specular_separation`
     (computed here unless ``separation`` is given) flags as highlights, and the robust
     solver then relies on those flags instead of its few-lights rule; ``"none"`` (default)
     fits every observation the shadow and saturation rules keep. The height map keeps only pixels inside the acquisition mask
-    with a valid normal.
+    with a valid normal. ``start``: with a device, another band's :class:`BandReconstruction`
+    of the same capture, whose depth and scale the near-field solver starts from
+    (:func:`skintopo.nearfield.near_field_photometric_stereo`).
     """
     if highlights not in HIGHLIGHT_MODES:
         raise SkinTopoError(f"unknown highlight handling {highlights!r}; choose from {list(HIGHLIGHT_MODES)}")
     if acquisition.device is not None:
         return _near_field_band(acquisition, band, integrator=integrator, shadow_fraction=shadow_fraction, solver=solver,
-                                highlights=highlights, separation=separation)
+                                highlights=highlights, separation=separation, start=None if start is None else start.near_field)
     if highlights == "cross-band" and separation is None and band != SPECULAR_FREE:
         separation = specular_separation(acquisition)
     images, lights, flagged = band_images(acquisition, band, separation if highlights == "cross-band" else None)
@@ -101,7 +103,7 @@ def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEG
     return BandReconstruction(band, stereo, height, middle - start, end - middle)
 
 
-def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fraction, solver, highlights, separation=None):
+def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fraction, solver, highlights, separation=None, start=None):
     """A band of a device acquisition through near-field photometric stereo
     (:mod:`skintopo.nearfield`): the height on the skin-plane grid, the normals resampled to
     it. ``highlights="cross-band"`` solves the diffuse images of the dichromatic separation
@@ -124,10 +126,10 @@ def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fract
         values = values - separation.specular
     device = acquisition.device
     band_device = replace(device, leds=tuple(device.led(name) for name in images.leds))
-    start = time.perf_counter()
+    started = time.perf_counter()
     result = near_field_photometric_stereo(values, band_device, band, mask=acquisition.mask, shadow_fraction=shadow_fraction,
-                                           integrator=integrator)
-    seconds = time.perf_counter() - start
+                                           integrator=integrator, start=start)
+    seconds = time.perf_counter() - started
     return BandReconstruction(band, result.stereo_on_surface_grid(), result.height, seconds, 0.0, result)
 
 
