@@ -302,12 +302,18 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     return z
 
 
-def fill_from_nearest(valid, *arrays):
+def nearest_valid_index(valid):
+    """For every pixel, the (row, column) index of the nearest pixel of ``valid`` (Euclidean
+    distance transform), as a tuple usable to index an array."""
+    return tuple(scipy.ndimage.distance_transform_edt(~np.asarray(valid, dtype=bool), return_distances=False, return_indices=True))
+
+
+def fill_from_nearest(valid, *arrays, index=None):
     """Copies of ``arrays`` with every pixel outside ``valid`` set to the value of the
-    nearest valid pixel (Euclidean distance transform): a bridge over holes that adds no
-    slope or step of its own."""
-    nearest = tuple(scipy.ndimage.distance_transform_edt(~np.asarray(valid, dtype=bool), return_distances=False, return_indices=True))
-    return tuple(np.asarray(a)[nearest] for a in arrays)
+    nearest valid pixel: a bridge over holes that adds no slope or step of its own.
+    ``index``: :func:`nearest_valid_index` of ``valid``, when already known."""
+    index = nearest_valid_index(valid) if index is None else index
+    return tuple(np.asarray(a)[index] for a in arrays)
 
 
 INTEGRATORS = dict(zip(INTEGRATOR_NAMES, (dct_poisson, frankot_chellappa, masked_least_squares)))
