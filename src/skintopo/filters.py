@@ -56,26 +56,37 @@ _FFT_SIGMA_PX = 8.0  # from this width on, Gaussian smoothing by FFT is faster t
 def gaussian_smooth(images, sigmas):
     """Separable Gaussian smoothing of several same-shaped images, zero outside the field.
 
-    Narrow kernels: direct convolution (truncated at 4 sigma). Wide ones: one batched FFT
-    with the Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) on a grid padded by
-    4 sigma (so nothing wraps around), whose cost does not grow with the kernel.
+    Narrow kernels: direct convolution (truncated at 4 sigma). Wide ones: an FFT with the
+    Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) on a grid padded by 4 sigma (so
+    nothing wraps around), whose cost does not grow with the kernel. ``images`` may be an
+    array (..., rows, columns) or any iterable of same-shaped images (a generator lets the
+    caller make each one only when it is smoothed).
     """
-    images = np.asarray(images, dtype=np.float64)
-    if max(sigmas) < _FFT_SIGMA_PX:
-        out = scipy.ndimage.gaussian_filter1d(images, sigmas[0], axis=-2, mode="constant", truncate=_TRUNCATE)
-        return scipy.ndimage.gaussian_filter1d(out, sigmas[1], axis=-1, mode="constant", truncate=_TRUNCATE)
-    rows, columns = images.shape[-2:]
-    pad = [int(np.ceil(_TRUNCATE * s)) for s in sigmas]
-    shape = [scipy.fft.next_fast_len(n + 2 * p, real=True) for n, p in zip((rows, columns), pad)]
-    fy = scipy.fft.fftfreq(shape[0])[:, None]
-    fx = scipy.fft.rfftfreq(shape[1])[None, :]
-    transfer = np.exp(-2 * np.pi**2 * ((sigmas[0] * fy) ** 2 + (sigmas[1] * fx) ** 2))
-    spectrum = scipy.fft.rfft2(images, s=shape, axes=(-2, -1), workers=-1)
-    spectrum *= transfer
-    smoothed = scipy.fft.irfft2(spectrum, s=shape, axes=(-2, -1), workers=-1)
-    # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
-    # reaches into the padding, which is at least 4 sigma wide on each side.
-    return smoothed[..., :rows, :columns]
+    images = list(images) if not isinstance(images, np.ndarray) else images
+    first = np.asarray(images[0])
+    smoothed = np.empty((len(images), *first.shape[-2:])) if not isinstance(images, np.ndarray) else np.empty(images.shape)
+    transfer = None
+    for index in np.ndindex(smoothed.shape[:-2]):
+        image = np.asarray(images[index[0]] if not isinstance(images, np.ndarray) else images[index], dtype=np.float64)
+        if max(sigmas) < _FFT_SIGMA_PX:
+            out = scipy.ndimage.gaussian_filter1d(image, sigmas[0], axis=-2, mode="constant", truncate=_TRUNCATE)
+            smoothed[index] = scipy.ndimage.gaussian_filter1d(out, sigmas[1], axis=-1, mode="constant", truncate=_TRUNCATE)
+            continue
+        rows, columns = image.shape
+        if transfer is None:
+            pad = [int(np.ceil(_TRUNCATE * s)) for s in sigmas]
+            shape = [scipy.fft.next_fast_len(n + 2 * p, real=True) for n, p in zip((rows, columns), pad)]
+            fy = scipy.fft.fftfreq(shape[0])[:, None]
+            fx = scipy.fft.rfftfreq(shape[1])[None, :]
+            transfer = np.exp(-2 * np.pi**2 * ((sigmas[0] * fy) ** 2 + (sigmas[1] * fx) ** 2))
+        # One image at a time: a batch's padded spectra would hold a complex copy of the
+        # field per image at once (about 5 GiB for the ISO filter's 9 moments at 20 MP).
+        spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
+        spectrum *= transfer
+        # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
+        # reaches into the padding, which is at least 4 sigma wide on each side.
+        smoothed[index] = scipy.fft.irfft2(spectrum, s=shape, workers=-1)[:rows, :columns]
+    return smoothed
 
 
 def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
@@ -112,19 +123,30 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     weight = valid.astype(np.float64)
     values = np.where(valid, z, 0.0)
     rows, columns = z.shape
-    # Centred coordinates (pixels) keep the moment sums well conditioned.
-    y = (np.arange(rows) - rows / 2)[:, None] * np.ones((1, columns))
-    x = np.ones((rows, 1)) * (np.arange(columns) - columns / 2)[None, :]
-    s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = gaussian_smooth(
-        [weight, weight * x, weight * y, weight * x * x, weight * x * y, weight * y * y, values, values * x, values * y], sigmas
-    )
-    # Moments about each output point (x0, y0).
-    mx, my = sx - x * s0, sy - y * s0
-    mxx = sxx - 2 * x * sx + x * x * s0
-    myy = syy - 2 * y * sy + y * y * s0
-    mxy = sxy - x * sy - y * sx + x * y * s0
-    mxz, myz = sxz - x * sz, syz - y * sz
-    solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, mx, my, mxx, mxy, myy)], [c.ravel() for c in (sz, mxz, myz)])
+    # Centred coordinates (pixels) keep the moment sums well conditioned; kept as a column
+    # and a row (broadcast), and the moment images made one at a time as they are smoothed,
+    # so that the filter holds about 20 field-sized arrays at its peak, not 40.
+    y = (np.arange(rows) - rows / 2)[:, None]
+    x = (np.arange(columns) - columns / 2)[None, :]
+    moments = gaussian_smooth((factor() for factor in (
+        lambda: weight, lambda: weight * x, lambda: weight * y, lambda: weight * x * x, lambda: weight * x * y,
+        lambda: weight * y * y, lambda: values, lambda: values * x, lambda: values * y)), sigmas)
+    del weight, values
+    s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = moments
+    # Moments about each output point (x0, y0), in place (each before the sums it reads change).
+    # The operations are those of mxx = sxx - 2 x sx + x^2 s0 etc. in the same order (same rounding).
+    sxx -= 2 * x * sx
+    sxx += x * x * s0  # mxx
+    syy -= 2 * y * sy
+    syy += y * y * s0  # myy
+    sxy -= x * sy
+    sxy -= y * sx
+    sxy += x * y * s0  # mxy
+    sxz -= x * sz  # mxz
+    syz -= y * sz  # myz
+    sx -= x * s0  # mx
+    sy -= y * s0  # my
+    solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, sx, sy, sxx, sxy, syy)], [c.ravel() for c in (sz, sxz, syz)])
     with np.errstate(invalid="ignore", divide="ignore"):
         zeroth = (sz / s0).ravel()
         # Conditioning of the plane fit: det against (s0 * spread^2)^... compare with the
