@@ -53,24 +53,29 @@ def gaussian_transmission(wavelength_um, cutoff_um):
 _FFT_SIGMA_PX = 8.0  # from this width on, Gaussian smoothing by FFT is faster than direct
 
 
-def gaussian_smooth(images, sigmas):
+def gaussian_smooth(images, sigmas, out=None):
     """Separable Gaussian smoothing of several same-shaped images, zero outside the field.
 
     Narrow kernels: direct convolution (truncated at 4 sigma). Wide ones: an FFT with the
     Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) on a grid padded by 4 sigma (so
-    nothing wraps around), whose cost does not grow with the kernel. ``images`` may be an
-    array (..., rows, columns) or any iterable of same-shaped images (a generator lets the
-    caller make each one only when it is smoothed).
+    nothing wraps around), whose cost does not grow with the kernel. ``images``: an array
+    (..., rows, columns), or any iterable of same-shaped images with ``out`` (k, rows,
+    columns) to write into (a generator then makes each image only when it is smoothed).
+    Images are smoothed one at a time: a batch's padded spectra would hold a complex copy of
+    the field per image at once (about 5 GiB for the ISO filter's 9 moments at 20 MP).
     """
-    images = list(images) if not isinstance(images, np.ndarray) else images
-    first = np.asarray(images[0])
-    smoothed = np.empty((len(images), *first.shape[-2:])) if not isinstance(images, np.ndarray) else np.empty(images.shape)
+    if out is None:
+        images = np.asarray(images, dtype=np.float64)
+        out = np.empty(images.shape)
+        flat_in, flat_out = images.reshape(-1, *images.shape[-2:]), out.reshape(-1, *images.shape[-2:])
+    else:
+        flat_in, flat_out = images, out
     transfer = None
-    for index in np.ndindex(smoothed.shape[:-2]):
-        image = np.asarray(images[index[0]] if not isinstance(images, np.ndarray) else images[index], dtype=np.float64)
+    for index, image in enumerate(flat_in):
+        image = np.asarray(image, dtype=np.float64)
         if max(sigmas) < _FFT_SIGMA_PX:
-            out = scipy.ndimage.gaussian_filter1d(image, sigmas[0], axis=-2, mode="constant", truncate=_TRUNCATE)
-            smoothed[index] = scipy.ndimage.gaussian_filter1d(out, sigmas[1], axis=-1, mode="constant", truncate=_TRUNCATE)
+            smoothed = scipy.ndimage.gaussian_filter1d(image, sigmas[0], axis=-2, mode="constant", truncate=_TRUNCATE)
+            flat_out[index] = scipy.ndimage.gaussian_filter1d(smoothed, sigmas[1], axis=-1, mode="constant", truncate=_TRUNCATE)
             continue
         rows, columns = image.shape
         if transfer is None:
@@ -79,14 +84,12 @@ def gaussian_smooth(images, sigmas):
             fy = scipy.fft.fftfreq(shape[0])[:, None]
             fx = scipy.fft.rfftfreq(shape[1])[None, :]
             transfer = np.exp(-2 * np.pi**2 * ((sigmas[0] * fy) ** 2 + (sigmas[1] * fx) ** 2))
-        # One image at a time: a batch's padded spectra would hold a complex copy of the
-        # field per image at once (about 5 GiB for the ISO filter's 9 moments at 20 MP).
         spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
         spectrum *= transfer
         # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
         # reaches into the padding, which is at least 4 sigma wide on each side.
-        smoothed[index] = scipy.fft.irfft2(spectrum, s=shape, workers=-1)[:rows, :columns]
-    return smoothed
+        flat_out[index] = scipy.fft.irfft2(spectrum, s=shape, workers=-1)[:rows, :columns]
+    return out
 
 
 def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
@@ -128,10 +131,10 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     # so that the filter holds about 20 field-sized arrays at its peak, not 40.
     y = (np.arange(rows) - rows / 2)[:, None]
     x = (np.arange(columns) - columns / 2)[None, :]
-    moments = gaussian_smooth((factor() for factor in (
-        lambda: weight, lambda: weight * x, lambda: weight * y, lambda: weight * x * x, lambda: weight * x * y,
-        lambda: weight * y * y, lambda: values, lambda: values * x, lambda: values * y)), sigmas)
-    del weight, values
+    products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
+                (values, x), (values, y))
+    moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
+                              out=np.empty((len(products), rows, columns)))
     s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = moments
     # Moments about each output point (x0, y0), in place (each before the sums it reads change).
     # The operations are those of mxx = sxx - 2 x sx + x^2 s0 etc. in the same order (same rounding).
