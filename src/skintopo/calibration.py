@@ -31,6 +31,7 @@ import scipy.ndimage
 import scipy.optimize
 
 from skintopo.acquisition import read_image
+from skintopo.acquisition.manifest import IMAGE_SUFFIXES
 from skintopo.device import Camera, Device, Led, aimed_at, check_device
 from skintopo.errors import SkinTopoError
 
@@ -185,7 +186,7 @@ def folder_images(folder):
     folder = Path(folder)
     if not folder.is_dir():
         raise SkinTopoError(f"{folder}: no such folder")
-    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".tif", ".tiff"))
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not paths:
         raise SkinTopoError(f"{folder}: no PNG or TIFF images")
     return paths

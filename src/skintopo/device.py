@@ -55,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.errors import SkinTopoError, header_problems
+from skintopo.outputs import write_json_atomic
 from skintopo.lights import check_light_directions
 
 FORMAT_NAME = "skintopo-device"
@@ -399,5 +400,6 @@ def read_device(path):
 
 
 def write_device(path, device: Device):
-    """Write ``device`` as a device file (the output of ``skintopo calibrate leds``)."""
-    Path(path).write_text(json.dumps(device.describe(), indent=2) + "\n", encoding="utf-8")
+    """Write ``device`` as a device file (the output of ``skintopo calibrate leds``), whole or
+    not at all (a temporary file renamed into place)."""
+    write_json_atomic(path, device.describe())

@@ -309,9 +309,12 @@ def nearest_valid_index(valid):
 
 
 def fill_from_nearest(valid, *arrays, index=None):
-    """Copies of ``arrays`` with every pixel outside ``valid`` set to the value of the
-    nearest valid pixel: a bridge over holes that adds no slope or step of its own.
-    ``index``: :func:`nearest_valid_index` of ``valid``, when already known."""
+    """``arrays`` with every pixel outside ``valid`` set to the value of the nearest valid
+    pixel: a bridge over holes that adds no slope or step of its own. Copies where there are
+    holes; the arrays themselves (not copied) when every pixel is valid. ``index``:
+    :func:`nearest_valid_index` of ``valid``, when already known."""
+    if index is None and np.all(valid):
+        return tuple(np.asarray(a) for a in arrays)
     index = nearest_valid_index(valid) if index is None else index
     return tuple(np.asarray(a)[index] for a in arrays)
 

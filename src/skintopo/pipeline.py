@@ -170,7 +170,7 @@ def reconstruct_bands(acquisition, options: ReconstructionOptions = Reconstructi
     results = {}
     for band in progress(list(bands or acquisition.bands)):
         # with a device, each band starts from the first band's depth (the same skin at the same distance)
-        start = next(iter(results.values()), None) if acquisition.device is not None and band != SPECULAR_FREE else None
+        start = next(iter(results.values()), None) if acquisition.device is not None else None
         results[band] = reconstruct_band(acquisition, band, integrator=options.integrator, shadow_fraction=options.shadow_fraction,
                                          solver=options.solver, highlights=options.highlights, separation=separation, start=start)
     return results

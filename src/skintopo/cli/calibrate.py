@@ -42,9 +42,7 @@ def run_leds(args):
                                        args.sphere_radius_mm, flat_images=read_grey_images(flat)[0] if flat else None,
                                        flat_depth_mm=args.flat_depth_mm, names=[led.name for led in design.leds])
     output = Path(args.out)
-    tmp = output.with_name(output.name + ".partial")
-    write_device(tmp, device)
-    tmp.replace(output)
+    write_device(output, device)
     if not args.quiet:
         for led, miss in zip(device.leds, details["ray_miss_rms_mm"]):
             x, y, z = led.position_mm

@@ -34,7 +34,7 @@ from skintopo.acquisition import write_acquisition
 from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
 from skintopo.optics import PROFILES, SkinOptics, optics_profile
-from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor
+from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor, with_interreflection_radius
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, make_surface
 
 __all__ = [
@@ -108,9 +108,7 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
         raise SkinTopoError(f"unknown skin type {settings.skin!r}; choose light or dark")
     if settings.noise < 0:
         raise SkinTopoError(f"noise level must be >= 0, got {settings.noise}")
-    if settings.interreflection_radius_um is None:
-        widest = max((w.width_um for w in surface.spec.wrinkles), default=0.0)
-        settings = replace(settings, interreflection_radius_um=max(400.0, widest))
+    settings = with_interreflection_radius(settings, surface.spec.wrinkles)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
     linear, info = render_bands(surface.height, surface.normals, settings, rng, progress)

@@ -27,8 +27,9 @@ import numpy as np
 import scipy.ndimage
 
 from skintopo.device import Device
+from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
-from skintopo.synth.render import NearLighting, RenderSettings, render_bands, sensor
+from skintopo.synth.render import NearLighting, RenderSettings, render_bands, sensor, with_interreflection_radius
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, make_surface
 
 DEFAULT_MARGIN = 0.15  # the rendered grid is this fraction wider than the image on each side
@@ -94,7 +95,8 @@ def camera_sample_points(height: HeightMap, device: Device, iterations=12):
         h = scipy.ndimage.map_coordinates(z, [row, column], order=1, mode="nearest")
         depth = device.working_distance_mm - h / 1000
     if row.min() < 0 or column.min() < 0 or row.max() > rows - 1 or column.max() > columns - 1:
-        raise ValueError("the surface grid does not cover the camera's view: increase the margin")
+        raise SkinTopoError("the simulated skin does not cover the camera's view (the device sees beyond the rendered margin): "
+                            "a wider margin or a device with a narrower field is needed")
     return row, column, depth
 
 
@@ -110,9 +112,7 @@ def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: 
         ``exposure_gain`` per band, render diagnostics, timings.
     """
     settings = settings or RenderSettings()
-    if settings.interreflection_radius_um is None:
-        widest = max((w.width_um for w in surface.spec.wrinkles), default=0.0)
-        settings = replace(settings, interreflection_radius_um=max(400.0, widest))
+    settings = with_interreflection_radius(settings, surface.spec.wrinkles)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
     near = near_lighting(surface.height, device)

@@ -33,7 +33,7 @@ Sensor
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.ndimage
@@ -179,6 +179,15 @@ class RenderSettings:
     specular_roughness: float | None = None  # Beckmann m; None: the profile's (skin 0.3-0.45, field notes)
     noise: float = 1.0
     saturate: bool = False
+
+
+def with_interreflection_radius(settings: RenderSettings, wrinkles):
+    """``settings`` with the interreflection radius filled in when it is None: the widest of
+    ``wrinkles``, at least 0.4 mm."""
+    if settings.interreflection_radius_um is not None:
+        return settings
+    widest = max((w.width_um for w in wrinkles), default=0.0)
+    return replace(settings, interreflection_radius_um=max(400.0, widest))
 
 
 def _albedo_maps(shape, pixel, base, vary, rng):
