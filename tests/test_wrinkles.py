@@ -5,44 +5,27 @@ import json
 
 import numpy as np
 import pytest
-import scipy.ndimage
 
 from skintopo.cli import main
-from skintopo.filters import areal_gaussian_filter
+from skintopo.evaluation import match_wrinkle
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
-from skintopo.synth.surfaces import END_TAPER, _coordinates, wrinkle_relief
-from skintopo.wrinkles import DEFAULT_SHORT_CUTOFF_UM, _path_length, centre_lines, measure_wrinkles
+from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
+from skintopo.wrinkles import centre_lines, measure_wrinkles, wrinkle_frame
 
-
-def truth(surface, index):
-    """Measures of the exact wrinkle alone, S-filtered like the measurement (ISO: measures
-    are taken on the scale-limited surface): length at half depth of the end taper, floor
-    depth, half-depth width, volume."""
-    spec = surface.spec
-    wrinkle = spec.wrinkles[index]
-    x, y = _coordinates(surface.height.shape, spec.pixel_um)
-    relief = areal_gaussian_filter(-wrinkle_relief(x, y, wrinkle)[0], spec.pixel_um, DEFAULT_SHORT_CUTOFF_UM)
-    length = (1 - END_TAPER) * wrinkle.length_um  # the smoothstep taper is at half depth half-way along it
-    half = (relief >= 0.5 * scipy.ndimage.maximum_filter(relief, size=41)) & (relief > 0.05 * relief.max())
-    return {
-        "length_mm": length / 1000,
-        "max_depth_um": float(relief.max()),
-        "mean_width_mm": half.sum() * spec.pixel_um**2 / length / 1000,
-        "volume_mm3": float(relief.sum() * spec.pixel_um**2 * 1e-9),
-    }
+TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10}
 
 
 def relative_errors(surface):
+    """Each simulated wrinkle's measures against its geometry (synth.geometric_measures: the
+    wrinkle alone, exact, never filtered), matched by overlap of the half-depth regions."""
     measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
     errors = []
-    for index in range(len(surface.spec.wrinkles)):
-        inside = surface.wrinkle_labels == index + 1
-        found = np.bincount(measures.labels[inside], minlength=len(measures.wrinkles) + 1)
-        found[0] = 0
-        measured = measures.wrinkles[int(found.argmax()) - 1]
-        expected = truth(surface, index)
-        errors.append({name: getattr(measured, name) / value - 1 for name, value in expected.items()})
+    for index, wrinkle in enumerate(surface.spec.wrinkles):
+        measured = match_wrinkle(measures, surface.wrinkle_labels == index + 1)
+        assert measured is not None, f"wrinkle {index} not found"
+        expected = geometric_measures(wrinkle)
+        errors.append({name: getattr(measured, name) / expected[name] - 1 for name in TOLERANCES})
     return measures, errors
 
 
@@ -55,29 +38,48 @@ def test_measures_of_known_wrinkles_on_smooth_skin(preset):
         print(preset, {k: f"{100 * v:+.1f}%" for k, v in e.items()})
     assert len(measures.wrinkles) == len(spec.wrinkles)
     for e in errors:
-        assert abs(e["length_mm"]) < 0.10 and abs(e["max_depth_um"]) < 0.10
-        assert abs(e["mean_width_mm"]) < 0.15 and abs(e["volume_mm3"]) < 0.15
+        assert all(abs(e[name]) <= tolerance for name, tolerance in TOLERANCES.items()), e
+
+
+@pytest.mark.parametrize("shape", ["V", "U", "G"])
+@pytest.mark.parametrize("width_um", [150.0, 1000.0])
+def test_depth_width_length_and_volume_of_narrow_and_wide_profiles(shape, width_um):
+    """The S-filter once filled the floor of narrow wrinkles (-10 to -25% in depth): with none,
+    a 0.15 mm wrinkle (7.5 pixels; a V is sampled off its cusp) keeps its depth to 3%, and a curved
+    (5 mm radius) wide one its length and width."""
+    wrinkle = Wrinkle(depth_um=200.0, width_um=width_um, length_um=4000.0, orientation_deg=7.0, shape=shape,
+                      curvature_per_mm=0.2 if width_um > 500 else 0.0)
+    surface = make_surface(SurfaceSpec(size_px=(320, 320), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
+    measures, errors = relative_errors(surface)
+    print(shape, width_um, {k: f"{100 * v:+.2f}%" for k, v in errors[0].items()})
+    assert abs(errors[0]["max_depth_um"]) < 0.03 and abs(errors[0]["length_mm"]) < 0.01
+    assert abs(errors[0]["mean_width_mm"]) < 0.03 and abs(errors[0]["volume_mm3"]) < 0.05
+    assert measures.wrinkles[0].mean_depth_um <= measures.wrinkles[0].max_depth_um
 
 
 @pytest.mark.slow
-def test_measures_with_microrelief_within_the_issue_tolerances():
-    """With the microrelief on (furrows 20-60 um deep, the low state's wrinkles only 50-60 um),
-    on seeds 1-6 of all three states: counts exact, length and max depth within 10%, width
-    and volume within 15%, for every wrinkle."""
-    table, miscounts = [], []
-    for seed in range(1, 7):
-        for preset in ("forehead-low", "forehead-moderate", "forehead-high"):
-            surface = make_surface(preset_spec(preset, size_px=256), seed=seed)
-            measures, errors = relative_errors(surface)
-            if len(measures.wrinkles) != len(surface.spec.wrinkles):
-                miscounts.append((preset, seed, len(measures.wrinkles)))
-            table += [(preset, e) for e in errors]
-    assert not miscounts
-    for name, tolerance in (("length_mm", 0.10), ("max_depth_um", 0.10), ("mean_width_mm", 0.15), ("volume_mm3", 0.15)):
-        values = np.array([e[name] for _, e in table])
-        print(f"{name:>14}: mean error {100 * values.mean():+.1f}%, mean |error| {100 * np.abs(values).mean():.1f}%, "
-              f"worst {100 * np.abs(values).max():.1f}%")
-        assert np.abs(values).max() < tolerance, name
+def test_random_fields_on_smooth_skin_within_the_issue_tolerances():
+    """Random fields (synth.random_wrinkle_spec: V/U/G, 0.15-1.2 mm wide, 20-300 um deep,
+    straight or arcs down to 5 mm radius), smooth skin, no crossings: every wrinkle found and
+    every measure within the tolerances of issue 17 (5% depths and length, 10% width and
+    volume). Fields with microrelief and crossing pairs are in bench/bench_wrinkles.py."""
+    failures = []
+    for seed in range(8):
+        surface = make_surface(random_wrinkle_spec(np.random.default_rng(1000 + seed), microrelief=False), seed=seed)
+        for index, e in enumerate(relative_errors(surface)[1]):
+            failures += [(seed, index, name, round(e[name], 3)) for name, tolerance in TOLERANCES.items() if abs(e[name]) > tolerance]
+    assert not failures
+
+
+def test_mean_depth_never_exceeds_max_depth():
+    """A property of the definitions (both read from one centre-line profile), on wrinkles
+    with furrows, roughness and noise, where a separate robust maximum once gave 77.49 um
+    mean against 76.65 um max."""
+    rng = np.random.default_rng(7)
+    for seed in range(3):
+        surface = make_surface(random_wrinkle_spec(rng, microrelief=True), seed=seed)
+        for w in measure_wrinkles(surface.height, segment_wrinkles(surface.height)).wrinkles:
+            assert w.mean_depth_um <= w.max_depth_um
 
 
 def test_centre_line_is_the_longest_path_without_side_branches():
@@ -85,15 +87,24 @@ def test_centre_line_is_the_longest_path_without_side_branches():
     skeleton[20, 10:70] = True  # 60 pixels along x
     skeleton[21:30, 40] = True  # a side branch of 9 pixels
     skeleton[5, 5:8] = True  # a second piece, 3 pixels
-    pieces = centre_lines(skeleton, (2.0, 1.5), 100.0)
-    lengths = sorted(_path_length(path, (2.0, 1.5)) for path, _ in pieces)
-    assert lengths == [2 * 1.5, 59 * 1.5]
-    main = max(pieces, key=len)
-    np.testing.assert_allclose(main[1], 0.0, atol=1e-9)
-    diagonal = np.eye(30, dtype=bool)  # rows down, columns right: 45 degrees below +x
-    path, direction = centre_lines(diagonal, (1.0, 1.0), 5.0)[0]
-    assert len(path) == 30 and np.isclose(_path_length(path, (1.0, 1.0)), 29 * np.sqrt(2))
-    np.testing.assert_allclose(direction, 135.0)
+    paths = centre_lines(skeleton, (2.0, 1.5))
+    assert sorted(len(path) for path in paths) == [3, 60]
+    main_path = max(paths, key=len)
+    frame = wrinkle_frame(main_path, (2.0, 1.5), smoothing_um=100.0, extension_um=0.0, half_span_um=3.0, step_um=0.5)
+    assert frame.s[-1] == pytest.approx(59 * 1.5, abs=0.5)
+    np.testing.assert_allclose((frame.direction_deg() + 90) % 180 - 90, 0.0, atol=1e-6)  # axial: 180 is 0
+
+
+def test_frame_of_a_staircase_line_has_its_true_length_and_direction():
+    """An 8-connected digital line at 22.5 degrees: counting steps of 1 and sqrt(2) pixels
+    overstates its length by 8%; the smoothed frame is within 0.5%, and its direction
+    within 0.5 degrees."""
+    angle = np.radians(22.5)
+    columns = np.arange(200)
+    path = np.stack([np.rint(100 - columns * np.tan(angle)).astype(int), columns], axis=-1)  # rows run down: y up
+    frame = wrinkle_frame(path, (1.0, 1.0), smoothing_um=25.0, extension_um=0.0, half_span_um=2.0, step_um=0.5)
+    assert frame.s[-1] == pytest.approx(199 / np.cos(angle), rel=0.005)
+    np.testing.assert_allclose(np.median(frame.direction_deg()), 22.5, atol=0.5)
 
 
 def test_wrinkles_command(tmp_path, capsys):
@@ -116,8 +127,6 @@ def test_orientation_centroid_and_severity_of_a_known_straight_wrinkle(angle):
     """One straight wrinkle at a known angle (counter-clockwise from +x, y up) and position on
     smooth skin: orientation within 2 degrees (as an axial angle), centroid within 0.1 mm,
     severity = mean depth x length / 100 by definition."""
-    from skintopo.synth.surfaces import SurfaceSpec, Wrinkle
-
     wrinkle = Wrinkle(depth_um=120.0, width_um=500.0, length_um=3500.0, orientation_deg=angle, centre_um=(300.0, -200.0), shape="U")
     spec = SurfaceSpec(size_px=(256, 256), pixel_um=20.0, wrinkles=(wrinkle,), microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
     surface = make_surface(spec, seed=0)

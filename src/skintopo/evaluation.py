@@ -181,3 +181,13 @@ def cross_section_line(labels, index, spacing, length_factor=3.0):
         c = np.clip(column + sign * half * across[1], 0, columns - 1)
         ends.append((c * dx, r * dy))
     return ends[0], ends[1]
+
+
+def match_wrinkle(measures, region):
+    """The measured wrinkle (of a :class:`skintopo.wrinkles.WrinkleMeasures`) whose id covers
+    most of ``region`` (a true wrinkle's half-depth region), or None when none touches it."""
+    found = np.bincount(measures.labels[np.asarray(region, bool)], minlength=len(measures.wrinkles) + 1)
+    found[0] = 0
+    if found.max() == 0:
+        return None
+    return next(w for w in measures.wrinkles if w.id == int(found.argmax()))

@@ -35,7 +35,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
 from skintopo.optics import PROFILES, SkinOptics, optics_profile
 from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor, with_interreflection_radius
-from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, make_surface
+from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, geometric_measures, make_surface
 
 __all__ = [
     "PRESETS",
@@ -47,6 +47,7 @@ __all__ = [
     "SkinSurface",
     "SurfaceSpec",
     "Wrinkle",
+    "geometric_measures",
     "make_surface",
     "preset_spec",
     "simulate_acquisition",
@@ -158,6 +159,7 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
                 "noise": settings.noise,
                 "saturate": settings.saturate,
             },
+            "wrinkle_measures": [geometric_measures(w) for w in surface.spec.wrinkles],
             "wrinkles_png": "0 = no wrinkle, i = wrinkle i (1-based, order of surface.wrinkles), half-depth region",
             "diagnostics": info or {},
         }

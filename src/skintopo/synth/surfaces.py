@@ -18,10 +18,13 @@ Components (sources for the numbers: ``../shared/reference/field-notes.md``, "Sk
   spectral differentiation of the same series (exact).
 * **Wrinkles** -- a centre line (straight or a circular arc of curvature kappa), length L,
   width w, depth D and cross-section: ``V`` z = -D (sqrt(1 + a^2) - sqrt(u^2 + a^2)) /
-  (sqrt(1 + a^2) - a) with a = 0.15 (rounded bottom), ``U`` z = -D cos^2(pi u / 2), where
-  u = 2 d / w, d the signed distance to the centre line, |u| <= 1. The depth tapers with a
-  smoothstep over the last 15% of the length at each end. Wrinkle depths are 50-300 um,
-  widths 0.2-1.7 mm, lengths 5-30 mm in the field notes.
+  (sqrt(1 + a^2) - a) with a = 0.15 (rounded bottom), ``U`` z = -D cos^2(pi u / 2), both for
+  |u| <= 1, and ``G`` z = -D exp(-u^2 / (2 s^2)) with s = 1/2 (sigma = w / 4, the depth falls
+  to e^-2 of D at the width's edges; not truncated), where u = 2 d / w, d the signed distance
+  to the centre line. The depth tapers with a smoothstep over the last 15% of the length at
+  each end. Wrinkle depths are 50-300 um, widths 0.2-1.7 mm, lengths 5-30 mm in the field
+  notes. :func:`geometric_measures` gives each wrinkle's measures by the definitions of
+  ``docs/wrinkle-measures.md``, exactly, from this geometry.
 * **Form** -- the gentle curvature of a forehead: a cylinder of radius ``form_radius_mm``
   bending about the vertical axis, z = -x^2 / (2 R).
 
@@ -41,6 +44,8 @@ from skintopo.heightmap import HeightMap
 
 V_ROUNDING = 0.15
 END_TAPER = 0.15
+GAUSSIAN_SIGMA_HALF_WIDTHS = 0.5  # G profile: sigma in units of the half-width w / 2
+SHAPES = ("V", "U", "G")
 
 
 @dataclass(frozen=True)
@@ -184,6 +189,62 @@ def _smoothstep(t):
     return t * t * (3 - 2 * t), 6 * t * (1 - t)
 
 
+def cross_section_profile(shape, u):
+    """Depth across a wrinkle as a fraction of its local depth, and its derivative, at
+    u = 2 d / w (see the module notes for the three shapes)."""
+    u = np.asarray(u, dtype=float)
+    if shape == "G":
+        s2 = GAUSSIAN_SIGMA_HALF_WIDTHS**2
+        profile = np.exp(-u * u / (2 * s2))
+        return profile, -u / s2 * profile
+    inside = np.abs(u) < 1
+    if shape == "V":
+        a = V_ROUNDING
+        top = np.sqrt(1 + a * a)
+        root = np.sqrt(u * u + a * a)
+        return np.where(inside, (top - root) / (top - a), 0.0), np.where(inside, -(u / root) / (top - a), 0.0)
+    return np.where(inside, np.cos(np.pi * u / 2) ** 2, 0.0), np.where(inside, -np.pi / 2 * np.sin(np.pi * u), 0.0)
+
+
+def geometric_measures(wrinkle: Wrinkle):
+    """The wrinkle's measures by the definitions of ``docs/wrinkle-measures.md``, exact for
+    its geometry (the ground truth of :func:`skintopo.wrinkles.measure_wrinkles`).
+
+    With the depth d(s, t) = D e(s) f(u) (s along the centre line, t = u w / 2 across it, e
+    the end taper, f the cross-section of :func:`cross_section_profile`):
+
+    * centre line: t = 0 where e(s) >= 1/2; the smoothstep taper is at half depth half-way
+      along it, so ``length_mm`` = (1 - T) L with T = ``END_TAPER``;
+    * ``max_depth_um`` = D; ``mean_depth_um`` = D x the mean of e over the centre line,
+      ((1 - 2T) + 2 (T / 2) m) / (1 - T) with m = 2 int_{1/2}^1 (3t^2 - 2t^3) dt = 0.8125;
+    * ``mean_width_mm`` = the width where f >= 1/2 (the same at every s: e scales f);
+    * ``volume_mm3`` = D (w / 2) int f du x int e ds = D (w / 2) int f du x (1 - T) L (exact
+      also on an arc: the area element (1 - kappa t) adds an odd term that integrates to 0);
+      ``cross_section_mm2`` = volume / length = D (w / 2) int f du;
+    * ``orientation_deg``: the axial mean of the centre line's direction, which on a
+      symmetric arc is its direction at the midpoint, ``orientation_deg`` mod 180.
+    """
+    import scipy.integrate
+    import scipy.optimize
+
+    taper = END_TAPER
+    mean_envelope = ((1 - 2 * taper) + taper * 0.8125) / (1 - taper)
+    half_u = scipy.optimize.brentq(lambda u: cross_section_profile(wrinkle.shape, u)[0] - 0.5, 0.0, 1.0 if wrinkle.shape != "G" else 5.0)
+    reach = 1.0 if wrinkle.shape != "G" else 20 * GAUSSIAN_SIGMA_HALF_WIDTHS
+    area_u = scipy.integrate.quad(lambda u: float(cross_section_profile(wrinkle.shape, u)[0]), -reach, reach, points=[0.0])[0]
+    length_um = (1 - taper) * wrinkle.length_um
+    cross_section_um2 = wrinkle.depth_um * wrinkle.width_um / 2 * area_u
+    return {
+        "length_mm": length_um / 1000,
+        "orientation_deg": wrinkle.orientation_deg % 180.0,
+        "mean_depth_um": wrinkle.depth_um * mean_envelope,
+        "max_depth_um": wrinkle.depth_um,
+        "mean_width_mm": 2 * half_u * wrinkle.width_um / 2 / 1000,
+        "cross_section_mm2": cross_section_um2 * 1e-6,
+        "volume_mm3": cross_section_um2 * length_um * 1e-9,
+    }
+
+
 def wrinkle_relief(x, y, wrinkle: Wrinkle):
     """Height, slopes and the fraction of local depth (for the mask) of one wrinkle."""
     theta = np.radians(wrinkle.orientation_deg)
@@ -212,17 +273,7 @@ def wrinkle_relief(x, y, wrinkle: Wrinkle):
         tangential = np.stack([-oy / rho, ox / rho], axis=-1)
         d_along = tangential * (abs(radius) / rho)[..., None] * np.sign(radius)
     half_width = wrinkle.width_um / 2
-    u = signed / half_width
-    inside = np.abs(u) < 1
-    if wrinkle.shape == "V":
-        a = V_ROUNDING
-        top = np.sqrt(1 + a * a)
-        root = np.sqrt(u * u + a * a)
-        profile = np.where(inside, (top - root) / (top - a), 0.0)
-        d_profile = np.where(inside, -(u / root) / (top - a), 0.0)
-    else:
-        profile = np.where(inside, np.cos(np.pi * u / 2) ** 2, 0.0)
-        d_profile = np.where(inside, -np.pi / 2 * np.sin(np.pi * u), 0.0)
+    profile, d_profile = cross_section_profile(wrinkle.shape, signed / half_width)
     half_length = wrinkle.length_um / 2
     taper_length = END_TAPER * wrinkle.length_um
     envelope, d_envelope = _smoothstep((half_length - np.abs(along)) / taper_length)
@@ -254,8 +305,8 @@ def validate_spec(spec: SurfaceSpec):
             problems.append(f"wrinkle {i}: width {w.width_um:g} um is not smaller than the field ({field_um:g} um)")
         if w.length_um <= 0:
             problems.append(f"wrinkle {i}: length must be positive, got {w.length_um} um")
-        if w.shape not in ("V", "U"):
-            problems.append(f"wrinkle {i}: shape must be 'V' or 'U', got {w.shape!r}")
+        if w.shape not in SHAPES:
+            problems.append(f"wrinkle {i}: shape must be one of {', '.join(SHAPES)}, got {w.shape!r}")
         if w.curvature_per_mm and abs(1000.0 / w.curvature_per_mm) < w.width_um:
             problems.append(f"wrinkle {i}: radius of curvature smaller than its width")
     if spec.microrelief:
@@ -321,3 +372,32 @@ def make_surface(spec: SurfaceSpec, seed=0) -> SkinSurface:
     normals = np.stack([-p, -q, np.ones(shape)], axis=-1)
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     return SkinSurface(HeightMap(z, spec.pixel_um), p, q, normals, labels, wrinkle_depth, spec)
+
+
+def random_wrinkle_spec(rng, *, size_px=384, pixel_um=20.0, microrelief=True, crossing=False) -> SurfaceSpec:
+    """A field of two wrinkles drawn at random over the ranges that the wrinkle measures are
+    validated on (issue 17): shape V, U or G; width 0.15-1.2 mm and depth 20-300 um (both
+    log-uniform); length 2.5-5 mm; straight or (half of them) an arc of radius 5-50 mm.
+    Without ``crossing`` the two run within 15 degrees of +x, one in each half of the field,
+    apart; with it they cross near the centre at 30-90 degrees. The forehead's 80 mm cylinder
+    is kept; ``microrelief`` adds the furrows and roughness."""
+    field_um = size_px * pixel_um
+    wrinkles = []
+    first_angle = rng.uniform(-15.0, 15.0)
+    for index in range(2):
+        radius_mm = np.exp(rng.uniform(np.log(5.0), np.log(50.0)))
+        curvature = rng.choice([-1.0, 1.0]) / radius_mm if rng.random() < 0.5 else 0.0
+        if crossing:
+            angle = first_angle + (rng.choice([-1.0, 1.0]) * rng.uniform(30.0, 90.0) if index else 0.0)
+            centre = tuple(rng.uniform(-0.1, 0.1, 2) * field_um)
+        else:
+            angle = rng.uniform(-15.0, 15.0)
+            centre = (rng.uniform(-0.05, 0.05) * field_um, (0.25 if index == 0 else -0.25) * field_um)
+        wrinkles.append(Wrinkle(
+            depth_um=float(np.exp(rng.uniform(np.log(20.0), np.log(300.0)))),
+            width_um=float(np.exp(rng.uniform(np.log(150.0), np.log(1200.0)))),
+            length_um=float(rng.uniform(2500.0, 5000.0)),
+            orientation_deg=float(angle % 360.0), centre_um=centre, curvature_per_mm=float(curvature),
+            shape=str(rng.choice(SHAPES)),
+        ))
+    return SurfaceSpec(size_px=(size_px, size_px), pixel_um=float(pixel_um), wrinkles=tuple(wrinkles), microrelief=microrelief)
