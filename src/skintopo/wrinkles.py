@@ -81,6 +81,7 @@ DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level,
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 DEFAULT_FURROW_CLOSING_UM = 200.0
 DEFAULT_ALONG_CLOSING_UM = 500.0
+DEFAULT_DEPTH_WINDOW_UM = 1000.0  # max depth: the deepest stretch of centre line this long
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
 
 
@@ -341,11 +342,13 @@ def axial_mean_deg(angles_deg, weights=None):
 
 def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, short_cutoff_um=DEFAULT_SHORT_CUTOFF_UM,
                      reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM, depth_fraction=0.5,
-                     furrow_closing_um=DEFAULT_FURROW_CLOSING_UM, along_closing_um=DEFAULT_ALONG_CLOSING_UM) -> WrinkleMeasures:
+                     furrow_closing_um=DEFAULT_FURROW_CLOSING_UM, along_closing_um=DEFAULT_ALONG_CLOSING_UM,
+                     depth_window_um=DEFAULT_DEPTH_WINDOW_UM) -> WrinkleMeasures:
     """Per-wrinkle measures and field totals (see the module notes)."""
     if segmentation.labels.shape != height.shape:
         raise SkinTopoError(f"segmentation shape {segmentation.labels.shape} differs from the height map {height.shape}")
-    for name, value in (("furrow closing", furrow_closing_um), ("along closing", along_closing_um), ("margin", margin_um)):
+    for name, value in (("furrow closing", furrow_closing_um), ("along closing", along_closing_um), ("margin", margin_um),
+                        ("depth window", depth_window_um)):
         if not value > 0:
             raise SkinTopoError(f"the {name} length must be positive, got {value} um")
     if not short_cutoff_um >= 0:
@@ -369,14 +372,16 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
     height = HeightMap(z, height.spacing, height.mask)
     plateau = plateau_surface(height, furrow_closing_um)
     reference = areal_gaussian_filter(plateau, height.spacing, reference_cutoff_um, around)
-    z = np.where(height.mask, height.z, reference)
+    # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
+    # interpolation never reads a missing value; those samples are not part of any wrinkle.
+    z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
 
     extent_labels = label(extent_any)
     order = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
     wrinkles, ids, lines = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool)
     half_area_total = 0.0
     step = 0.5 * min(dy, dx)
-    for new_id, region in enumerate(order, start=1):
+    for region in order:
         whole_full = extent_labels == np.bincount(extent_labels[segmentation.labels == region.label]).argmax()
         core_full = segmentation.labels == region.label
         core_width = np.count_nonzero(core_full) * dx * dy / max(region.axis_major_length * min(dy, dx), dx)
@@ -401,8 +406,7 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         profile = floor_profile(frame, depth, inside, along_closing_um)
         if not np.isfinite(profile).any():
             continue
-        max_depth = float(profile.max())
-        threshold = depth_fraction * max_depth
+        threshold = depth_fraction * float(profile.max())
         deep = np.flatnonzero(profile >= threshold)
         first, last = deep[0], deep[-1]
         on_line = slice(first, last + 1)
@@ -422,16 +426,22 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         # and the field's outside left out.
         walls = (np.abs(frame.t)[:, None] <= width + margin_um) & inside
         volume = float((depth * frame.area_element)[walls].sum() * step * step * 1e-9)  # um^3 -> mm^3
-        mean_depth = float(np.mean(line_depth))
+        # Max and mean depth from one profile: the floor's depth along the centre line averaged
+        # over ``depth_window_um`` (mirrored at the line's ends, so its mean is the line's);
+        # the maximum is the deepest such stretch, so mean <= max always.
+        centre = int(np.abs(frame.t).argmin())
+        floor_depth = np.where(inside[centre, on_line], depth[centre, on_line], line_depth)
+        stretch = scipy.ndimage.uniform_filter1d(floor_depth, min(_samples(depth_window_um, frame), floor_depth.size), mode="reflect")
+        max_depth, mean_depth = float(stretch.max()), float(stretch.mean())
         orientation = axial_mean_deg(frame.direction_deg()[on_line])
         row, column = region.centroid
+        new_id = len(wrinkles) + 1  # ids 1..n without gaps (a wrinkle without a measurable line is skipped)
         wrinkles.append(Wrinkle(
             id=new_id, centroid_x_mm=column * dx / 1000, centroid_y_mm=row * dy / 1000, length_mm=length / 1000,
             orientation_deg=orientation, mean_depth_um=mean_depth, max_depth_um=max_depth, mean_width_mm=width / 1000,
             cross_section_mm2=volume / (length / 1000), volume_mm3=volume, severity=mean_depth * (length / 1000) / 100,
         ))
         ids[window][core] = new_id
-        centre = int(np.abs(frame.t).argmin())
         centre_rows = np.clip(np.rint(frame.rows[centre, on_line]).astype(int), 0, core.shape[0] - 1)
         centre_columns = np.clip(np.rint(frame.columns[centre, on_line]).astype(int), 0, core.shape[1] - 1)
         lines[window][centre_rows, centre_columns] = True
