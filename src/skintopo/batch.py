@@ -166,7 +166,7 @@ def run_task(kind, inputs, out, stamp, options):
         if kind == "measure":
             result = measure_acquisition(inputs[0], options)
         else:
-            result = compare_results(*inputs, segmentation=options.segmentation)
+            result = compare_results(*inputs, segmentation=options.segmentation, wrinkles=options.wrinkles)
         with staged_output_folder(out, overwrite=True) as staging:
             if kind == "measure":
                 write_measurement(staging, result, title=f"skintopo: {Path(inputs[0]).name}")

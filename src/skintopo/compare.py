@@ -21,9 +21,10 @@ Visits with different pixel sizes are refused (resampling silently would change 
 texture parameter); no overlap is refused; a visit with no wrinkles compares its texture and
 reports its wrinkles as unmatched.
 
-Repeatability: comparing two captures of the same unchanged skin gives each parameter's
-noise; :func:`detection_limits` turns one such pair into the smallest detectable change,
-2 sigma with sigma = |repeat difference| / sqrt(2).
+Repeatability: comparing the baseline with repeat captures of the same unchanged skin gives
+each parameter's noise; :func:`detection_limits` turns one or more such pairs into the
+smallest detectable change (a prediction limit in the sense of ISO 5725-6's repeatability
+limit, with Student's t for the few degrees of freedom; see there).
 """
 
 from __future__ import annotations
@@ -36,11 +37,13 @@ import scipy.optimize
 from skimage.registration import phase_cross_correlation
 from skimage.transform import warp_polar
 
+from skintopo.defaults import DEFAULT_DETECTION_CONFIDENCE
 from skintopo.errors import SkinTopoError
 from skintopo.filters import polynomial_form
 from skintopo.heightmap import HeightMap
 
 CAUCHY_FACTOR = 2.385
+MIN_DEGREES_OF_FREEDOM = 5  # detection limits from fewer differences come with a warning
 
 
 @dataclass(frozen=True)
@@ -216,7 +219,7 @@ class Comparison:
     albedo_residual_px: float | None = None  # residual misalignment of the albedo images (pixels RMS)
 
 
-def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None,
+def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None, wrinkle_options=None,
                    baseline_albedo=None, follow_up_albedo=None) -> Comparison:
     """Register ``follow_up`` onto ``baseline`` and report every change (see the module notes).
 
@@ -241,8 +244,8 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
     texture_after = parameters_by_name(measure_texture(after))
     texture = {name: _change(texture_before[name], texture_after[name]) for name in texture_before}
     options = segmentation_options or {}
-    wrinkles_before = measure_wrinkles(before, segment_wrinkles(before, **options))
-    wrinkles_after = measure_wrinkles(after, segment_wrinkles(after, **options))
+    wrinkles_before, wrinkles_after = (measure_wrinkles(visit, segment_wrinkles(visit, **options), **(wrinkle_options or {}))
+                                       for visit in (before, after))
     matches = match_wrinkles(wrinkles_before.labels, wrinkles_after.labels)
     per_wrinkle = {}
     fields = ("length_mm", "mean_depth_um", "max_depth_um", "mean_width_mm", "volume_mm3", "severity")
@@ -265,12 +268,74 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
     return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after, aligned_albedo, albedo_residual)
 
 
-def detection_limits(repeat: Comparison):
-    """Smallest detectable change per parameter from one repeat pair of unchanged skin:
-    each repeat difference d estimates sqrt(2) sigma, and the limit is 2 sigma = sqrt(2) |d|."""
-    limits = {name: float(np.sqrt(2) * abs(record["change"])) for name, record in repeat.texture.items()}
-    for wrinkle_id, record in repeat.wrinkles.items():
-        for name, change in record.items():
-            if isinstance(change, dict):
-                limits[f"wrinkle{wrinkle_id}.{name}"] = float(np.sqrt(2) * abs(change["change"]))
-    return limits
+@dataclass(frozen=True)
+class DetectionLimits:
+    """Smallest detectable change per parameter (its units; ``wrinkleN.measure`` per wrinkle,
+    ``wrinkles.name`` for the totals), the degrees of freedom behind it, the confidence and
+    warnings for the user."""
+
+    limits: dict
+    degrees_of_freedom: dict
+    confidence: float
+    repeat_pairs: int
+    warnings: tuple
+
+    def as_dict(self):
+        return {"confidence": self.confidence, "repeat_pairs": self.repeat_pairs, "warnings": list(self.warnings),
+                "degrees_of_freedom": self.degrees_of_freedom}
+
+
+def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> DetectionLimits:
+    """Detection limits from k >= 1 comparisons of the baseline with repeat captures of the
+    same unchanged skin (each through registration, resampling, noise and relighting, as a
+    real follow-up).
+
+    A repeat difference e of a parameter has variance 2 s_r^2 (two captures), so
+    s_r^2 = sum(e_j^2) / (2 nu) with nu the number of differences. The limit is the two-sided
+    prediction limit for the difference of two captures of unchanged skin,
+    L = t_((1 + confidence) / 2, nu) sqrt(2) s_r: ISO 5725-6's repeatability limit
+    r = 2.8 s_r (= 1.96 sqrt(2) s_r) is its 95% value for a known s_r; Student's t takes
+    account of s_r being estimated from few differences (one repeat pair: t_(0.995, 1) = 63.7,
+    so a single repeat gives wide limits, and a warning).
+
+    Texture parameters and wrinkle totals: absolute differences, nu = k. Per-wrinkle measures:
+    relative differences pooled over every wrinkle matched in every repeat (nu = their
+    number), the limit of each wrinkle L x its baseline value, on the assumption that the
+    repeatability of a wrinkle measure is proportional to it.
+    """
+    repeats = [repeats] if isinstance(repeats, Comparison) else list(repeats)
+    if not repeats:
+        raise SkinTopoError("detection limits need at least one repeat comparison")
+    if not 0.5 < confidence < 1:
+        raise SkinTopoError(f"the confidence must lie in (0.5, 1), got {confidence}")
+    import scipy.stats
+
+    def factor(nu):
+        return float(scipy.stats.t.ppf(0.5 + confidence / 2, nu) * np.sqrt(2))
+
+    limits, dof = {}, {}
+    for group, prefix in (("texture", ""), ("totals", "wrinkles.")):
+        for name in getattr(repeats[0], group):
+            e = np.array([getattr(r, group)[name]["change"] for r in repeats], float)
+            e = e[np.isfinite(e)]
+            if e.size:
+                dof[prefix + name] = int(e.size)
+                limits[prefix + name] = factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size)))
+    relative, baselines = {}, {}
+    for repeat in repeats:
+        for wrinkle_id, record in repeat.wrinkles.items():
+            for name, change in record.items():
+                if isinstance(change, dict) and change["baseline"] and np.isfinite(change["change"]):
+                    relative.setdefault(name, []).append(change["change"] / change["baseline"])
+                    baselines[(wrinkle_id, name)] = abs(change["baseline"])
+    for (wrinkle_id, name), baseline in baselines.items():
+        e = np.asarray(relative[name])
+        dof[f"wrinkle{wrinkle_id}.{name}"] = int(e.size)
+        limits[f"wrinkle{wrinkle_id}.{name}"] = factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size))) * baseline
+    warnings = []
+    fewest = min(dof.values()) if dof else 0
+    if fewest < MIN_DEGREES_OF_FREEDOM:
+        warnings.append(f"detection limits from {len(repeats)} repeat pair(s): {fewest} degree(s) of freedom for some parameters, so "
+                        f"their limits are wide (t factor {factor(max(fewest, 1)) / np.sqrt(2):.1f} instead of "
+                        f"{factor(1e9) / np.sqrt(2):.2f}); more repeat captures narrow them")
+    return DetectionLimits(limits, dof, confidence, len(repeats), tuple(warnings))

@@ -32,9 +32,16 @@ DEFAULT_SHORT_CUTOFF_UM = 600.0  # segmentation: lambda_s of the band-pass
 DEFAULT_MIN_DEPTH_UM = 25.0
 DEFAULT_MIN_LENGTH_UM = 1500.0
 
+DEFAULT_FURROW_CLOSING_UM = 200.0  # wrinkles: closing segment that fills the skin's furrows around a wrinkle
+DEFAULT_ALONG_CLOSING_UM = 500.0  # wrinkles: closing segment along a wrinkle that bridges crossing furrows
+DEFAULT_DEPTH_WINDOW_UM = 1000.0  # wrinkles: max depth = the deepest stretch of centre line this long
+DEFAULT_DEPTH_SHORT_CUTOFF_UM = 0.0  # wrinkles: S-filter of the depth (0 = none: it fills narrow floors)
+
 DEFAULT_LEVEL_ORDER = 1  # texture: least-squares plane removed first
 DEFAULT_P = 10.0  # texture: % (ISO 25178-2 default for Vmp, Vmc, Vvc)
 DEFAULT_Q = 80.0  # %
+
+DEFAULT_DETECTION_CONFIDENCE = 0.99  # compare: two-sided prediction limit of a repeat difference (ISO 5725-6's r is the 95% one)
 
 DEFAULT_SCHEDULER_TIMEOUT_S = 10.0  # batch: seconds to wait for a Dask scheduler
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from skintopo.acquisition import DEFAULT_SATURATION, load_acquisition
 from skintopo.correction import REQUIRED_BANDS, CorrectionResult, spectral_correction
-from skintopo.defaults import AUTO_HEIGHT, CORRECTION_METHODS, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
+from skintopo.defaults import AUTO_HEIGHT, CORRECTION_METHODS, DEFAULT_DETECTION_CONFIDENCE, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
@@ -40,7 +40,14 @@ from skintopo.segmentation import (
     segment_wrinkles,
 )
 from skintopo.texture import DEFAULT_P, DEFAULT_Q, finite_or_none, measure_texture
-from skintopo.wrinkles import WrinkleMeasures, measure_wrinkles
+from skintopo.wrinkles import (
+    DEFAULT_ALONG_CLOSING_UM,
+    DEFAULT_DEPTH_SHORT_CUTOFF_UM,
+    DEFAULT_DEPTH_WINDOW_UM,
+    DEFAULT_FURROW_CLOSING_UM,
+    WrinkleMeasures,
+    measure_wrinkles,
+)
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,22 @@ class SegmentationOptions:
 
 
 @dataclass(frozen=True)
+class WrinkleOptions:
+    """Wrinkle measure settings (:func:`skintopo.wrinkles.measure_wrinkles`), micrometres:
+    the closing segments that fill the furrows around a wrinkle and bridge those crossing it,
+    the stretch of centre line whose mean depth is the max depth, and the depth's S-filter
+    (0 = none, the default: any S-filter fills the floor of narrow wrinkles)."""
+
+    furrow_closing_um: float = DEFAULT_FURROW_CLOSING_UM
+    along_closing_um: float = DEFAULT_ALONG_CLOSING_UM
+    depth_window_um: float = DEFAULT_DEPTH_WINDOW_UM
+    short_cutoff_um: float = DEFAULT_DEPTH_SHORT_CUTOFF_UM
+
+    def as_kwargs(self):
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class TextureOptions:
     """Surface texture settings (:func:`skintopo.texture.measure_texture`): the order of the
     least-squares form removed first and the material ratios p, q (%) of the volume parameters."""
@@ -127,6 +150,7 @@ class MeasureOptions:
     segmentation: SegmentationOptions = field(default_factory=SegmentationOptions)
     texture: TextureOptions = field(default_factory=TextureOptions)
     regions: tuple = ()
+    wrinkles: WrinkleOptions = field(default_factory=WrinkleOptions)
 
     def as_dict(self):
         """Plain JSON-ready dict (the form stored in results and study fingerprints)."""
@@ -138,7 +162,7 @@ class MeasureOptions:
     def from_dict(cls, data):
         """Inverse of :meth:`as_dict`."""
         kinds = {"reconstruction": ReconstructionOptions, "height": HeightOptions, "segmentation": SegmentationOptions,
-                 "texture": TextureOptions}
+                 "texture": TextureOptions, "wrinkles": WrinkleOptions}
         unknown = set(data) - {f.name for f in fields(cls)}
         if unknown:
             raise SkinTopoError(f"unknown measure options {sorted(unknown)}")
@@ -277,7 +301,7 @@ def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions()
         else:
             texture[name] = measure_texture(region, **texture_options)
     segmentation = segment_wrinkles(height, **options.segmentation.as_kwargs())
-    wrinkles = measure_wrinkles(height, segmentation)
+    wrinkles = measure_wrinkles(height, segmentation, **options.wrinkles.as_kwargs())
     return Measurement(height, albedo, dict(source or {}), options, texture, fractal_results, segmentation, wrinkles)
 
 
@@ -324,37 +348,46 @@ def acquisition_summary(acquisition):
 @dataclass(frozen=True, eq=False)
 class CompareResult:
     """Output of :func:`compare_results`: the comparison, its rows (see
-    :func:`skintopo.results.comparison_rows`), a summary and the baseline's pixel spacing."""
+    :func:`skintopo.results.comparison_rows`), a summary, the baseline's pixel spacing and
+    warnings about the detection limits."""
 
     comparison: object
     rows: list
     summary: dict
     spacing: tuple
+    warnings: tuple = ()
 
 
-def compare_results(baseline, follow_up, *, repeat=None, pixel_um=None, allow_scale=False,
-                    segmentation: SegmentationOptions = SegmentationOptions()) -> CompareResult:
+def compare_results(baseline, follow_up, *, repeat=(), pixel_um=None, allow_scale=False, confidence=DEFAULT_DETECTION_CONFIDENCE,
+                    segmentation: SegmentationOptions = SegmentationOptions(),
+                    wrinkles: WrinkleOptions = WrinkleOptions()) -> CompareResult:
     """Compare two visits given as height files or result folders (see :mod:`skintopo.compare`).
 
-    ``repeat``, a second capture of the unchanged baseline skin, gives detection limits. The
-    albedo of result folders is carried by the same registration."""
+    ``repeat``: repeat captures of the unchanged baseline skin (one path or several), each
+    compared with the baseline as the follow-up is, give detection limits
+    (:func:`skintopo.compare.detection_limits` at ``confidence``). The albedo of result
+    folders is carried by the same registration."""
     from skintopo.compare import compare_visits, detection_limits
     from skintopo.results import comparison_rows, load_albedo_beside, load_height_input, run_header
 
     before, after = load_height_input(baseline, pixel_um), load_height_input(follow_up, pixel_um)
-    options = segmentation.as_kwargs()
-    comparison = compare_visits(before, after, allow_scale=allow_scale, segmentation_options=options,
+    options, wrinkle_options = segmentation.as_kwargs(), wrinkles.as_kwargs()
+    comparison = compare_visits(before, after, allow_scale=allow_scale, segmentation_options=options, wrinkle_options=wrinkle_options,
                                 baseline_albedo=load_albedo_beside(baseline), follow_up_albedo=load_albedo_beside(follow_up))
-    limits = {}
-    if repeat is not None:
-        limits = detection_limits(compare_visits(before, load_height_input(repeat, pixel_um), segmentation_options=options))
+    repeats = [repeat] if isinstance(repeat, (str, Path)) else list(repeat or ())
+    limits = None
+    if repeats:
+        limits = detection_limits([compare_visits(before, load_height_input(path, pixel_um), segmentation_options=options,
+                                                  wrinkle_options=wrinkle_options) for path in repeats], confidence=confidence)
     registration = comparison.registration
     summary = run_header("compare", baseline=Path(baseline).name, follow_up=Path(follow_up).name,
-                         repeat=Path(repeat).name if repeat is not None else None,
-                         options={"allow_scale": allow_scale, "segmentation": options},
+                         repeats=[Path(path).name for path in repeats],
+                         detection_limits=limits.as_dict() if limits else None,
+                         options={"allow_scale": allow_scale, "segmentation": options, "wrinkles": wrinkle_options},
                          registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
                                        "scale": registration.scale, "residual_misalignment_px": registration.residual_px,
                                        "albedo_residual_misalignment_px": comparison.albedo_residual_px},
                          wrinkle_matches={str(k): v["follow_up_id"] for k, v in comparison.wrinkles.items()},
                          units="um, mm, mm3, %; change = follow-up - baseline")
-    return CompareResult(comparison, comparison_rows(comparison, limits), summary, before.spacing)
+    return CompareResult(comparison, comparison_rows(comparison, limits.limits if limits else None), summary, before.spacing,
+                         limits.warnings if limits else ())

@@ -71,17 +71,14 @@ from skimage.graph import MCP_Geometric
 from skimage.measure import label, regionprops
 from skimage.morphology import skeletonize
 
+from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTOFF_UM, DEFAULT_DEPTH_WINDOW_UM, DEFAULT_FURROW_CLOSING_UM
 from skintopo.errors import SkinTopoError
 from skintopo.filters import areal_gaussian_filter, line_segment_closing, polynomial_form
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation
 
-DEFAULT_SHORT_CUTOFF_UM = 0.0  # the depth's S-filter: none (not the segmentation's band-pass lambda_s)
 DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
-DEFAULT_FURROW_CLOSING_UM = 200.0
-DEFAULT_ALONG_CLOSING_UM = 500.0
-DEFAULT_DEPTH_WINDOW_UM = 1000.0  # max depth: the deepest stretch of centre line this long
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
 
 
@@ -340,7 +337,7 @@ def axial_mean_deg(angles_deg, weights=None):
     return float(np.degrees(0.5 * np.arctan2((weights * np.sin(angles)).sum(), (weights * np.cos(angles)).sum())) % 180.0)
 
 
-def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, short_cutoff_um=DEFAULT_SHORT_CUTOFF_UM,
+def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, short_cutoff_um=DEFAULT_DEPTH_SHORT_CUTOFF_UM,
                      reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM, depth_fraction=0.5,
                      furrow_closing_um=DEFAULT_FURROW_CLOSING_UM, along_closing_um=DEFAULT_ALONG_CLOSING_UM,
                      depth_window_um=DEFAULT_DEPTH_WINDOW_UM) -> WrinkleMeasures:

@@ -10,7 +10,11 @@ from pathlib import Path
 from skintopo.defaults import (
     AUTO_HEIGHT,
     AUTO_INTEGRATOR,
+    DEFAULT_ALONG_CLOSING_UM,
     DEFAULT_CUTOFF_UM,
+    DEFAULT_DEPTH_SHORT_CUTOFF_UM,
+    DEFAULT_DEPTH_WINDOW_UM,
+    DEFAULT_FURROW_CLOSING_UM,
     DEFAULT_HIGHLIGHTS,
     DEFAULT_INTEGRATOR,
     DEFAULT_LEVEL_ORDER,
@@ -56,6 +60,7 @@ fraction = number_type(float, lambda v: 0 <= v < 1, "in [0, 1)")
 size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
 positive_int = number_type(int, lambda v: v >= 1, "1 or more")
 non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
+percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
 
 
 def progress(iterable, *, quiet, desc, total=None):
@@ -114,6 +119,7 @@ def measure_options(args, method=None):
         segmentation=segmentation_options(args),
         texture=TextureOptions(level_order=args.level, p=args.p, q=args.q),
         regions=tuple(args.region),
+        wrinkles=wrinkle_options(args),
     )
 
 
@@ -146,6 +152,13 @@ def segmentation_options(args):
                                min_length_um=args.min_length_um)
 
 
+def wrinkle_options(args):
+    from skintopo.pipeline import WrinkleOptions
+
+    return WrinkleOptions(furrow_closing_um=args.furrow_closing_um, along_closing_um=args.along_closing_um,
+                          depth_window_um=args.depth_window_um, short_cutoff_um=args.depth_short_cutoff_um)
+
+
 def parse_region(text):
     try:
         name, box = text.split("=", 1)
@@ -174,6 +187,19 @@ def add_segmentation_options(parser):
                         help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
 
 
+def add_wrinkle_options(parser):
+    """The wrinkle measures' settings (docs/wrinkle-measures.md)."""
+    parser.add_argument("--furrow-closing-um", type=positive_float, default=DEFAULT_FURROW_CLOSING_UM,
+                        help=f"closing segment that fills the furrows around a wrinkle (default {DEFAULT_FURROW_CLOSING_UM:g})")
+    parser.add_argument("--along-closing-um", type=positive_float, default=DEFAULT_ALONG_CLOSING_UM,
+                        help=f"closing segment along a wrinkle that bridges crossing furrows (default {DEFAULT_ALONG_CLOSING_UM:g})")
+    parser.add_argument("--depth-window-um", type=positive_float, default=DEFAULT_DEPTH_WINDOW_UM,
+                        help=f"max depth = mean depth of the deepest stretch of centre line this long (default {DEFAULT_DEPTH_WINDOW_UM:g})")
+    parser.add_argument("--depth-short-cutoff-um", type=non_negative_float, default=DEFAULT_DEPTH_SHORT_CUTOFF_UM,
+                        help="S-filter of the height the wrinkle depths are read from (default 0: none; any S-filter makes "
+                        "wrinkles narrower than about 4 x the cut-off read shallower)")
+
+
 def add_physics_kernels_option(parser):
     parser.add_argument("--physics-kernels", metavar="PROFILE", default=None,
                         help="physics only: take the scattering kernels from a skin-optics profile's diffusion profiles "
@@ -195,3 +221,4 @@ def add_measure_options(parser):
     parser.add_argument("--region", type=parse_region, action="append", default=[],
                         help="extra region NAME=x0,y0,x1,y1 in um from the top-left corner (pixel edges; repeatable)")
     add_segmentation_options(parser)
+    add_wrinkle_options(parser)

@@ -18,7 +18,7 @@ def run(args):
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
     height = load_height_input(args.input, args.pixel_um)
     segmentation = segment_wrinkles(height, **shared.segmentation_options(args).as_kwargs())
-    measures = measure_wrinkles(height, segmentation)
+    measures = measure_wrinkles(height, segmentation, **shared.wrinkle_options(args).as_kwargs())
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
         write_wrinkle_files(staging, measures, segmentation)
         (staging / "wrinkles_overlay.png").write_bytes(base64.b64decode(wrinkle_overlay_png(height, measures)))
@@ -40,5 +40,6 @@ def add_parser(commands):
     wrinkles.add_argument("-o", "--out", type=Path, required=True, help="output folder (wrinkles.csv, wrinkles.json, wrinkles_overlay.png)")
     wrinkles.add_argument("--pixel-um", type=shared.positive_float, help="pixel size for .npy maps")
     shared.add_segmentation_options(wrinkles)
+    shared.add_wrinkle_options(wrinkles)
     shared.add_output_switches(wrinkles)
     wrinkles.set_defaults(handler=run)
