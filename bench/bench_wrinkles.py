@@ -10,11 +10,13 @@ Reported: per measure, the share of found wrinkles within the issue's tolerance 
 depth and length, 10% width and volume) and the median |error|; detection of every wrinkle at
 least 30 um deep and 1.5 mm long at half depth; false wrinkles (a measured wrinkle whose
 centre line lies on no simulated wrinkle's half-depth region). Usage: python bench_wrinkles.py [N]
-Results: bench/results/wrinkles.json.
+Results: bench/results/wrinkles.json. ``python bench_wrinkles.py --figure`` draws
+docs/images/wrinkle-measures.png (the definitions, on one curved wrinkle with microrelief).
 """
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
@@ -22,7 +24,7 @@ from _results import write_result  # bench/_results.py (scripts run from bench/)
 from skintopo.evaluation import match_wrinkle
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
-from skintopo.synth.surfaces import geometric_measures, random_wrinkle_spec
+from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
 from skintopo.wrinkles import measure_wrinkles
 
 TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10}
@@ -92,5 +94,48 @@ def main(n):
     write_result("wrinkles", result)
 
 
+def figure():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    wrinkle = Wrinkle(depth_um=120.0, width_um=600.0, length_um=4500.0, orientation_deg=10.0, curvature_per_mm=0.12, shape="U")
+    surface = make_surface(SurfaceSpec(size_px=(320, 320), wrinkles=(wrinkle,)), seed=3)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    w, trace = measures.wrinkles[0], measures.traces[0]
+    truth = geometric_measures(wrinkle)
+    pixel = surface.spec.pixel_um / 1000
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.2), gridspec_kw={"width_ratios": [1.1, 1, 1.3]})
+    z = surface.height.z - np.median(surface.height.z)
+    image = axes[0].imshow(z, cmap="gray", extent=(0, z.shape[1] * pixel, z.shape[0] * pixel, 0))
+    for line, style, label in ((trace.centre_px, "-", "centre line"), (trace.lower_edge_px, "--", "half-depth edges"), (trace.upper_edge_px, "--", None)):
+        axes[0].plot(line[:, 1] * pixel, line[:, 0] * pixel, style, color="tab:orange", lw=1.2, label=label)
+    axes[0].set(xlabel="x (mm)", ylabel="y (mm, from the top)", title="height, with the wrinkle's frame")
+    axes[0].legend(loc="lower left", fontsize=8)
+    fig.colorbar(image, ax=axes[0], fraction=0.046, label="height (um)")
+    half = 0.5 * trace.depth_um[np.argmin(np.abs(trace.t_um))]
+    axes[1].plot(trace.t_um / 1000, trace.depth_um, color="k")
+    axes[1].axhline(half, color="tab:orange", ls="--", lw=1)
+    axes[1].annotate("", xy=(-0.5 * w.mean_width_mm, half), xytext=(0.5 * w.mean_width_mm, half), arrowprops={"arrowstyle": "<->", "color": "tab:orange"})
+    axes[1].text(0, half * 1.08, f"width at half depth {w.mean_width_mm:.3f} mm (truth {truth['mean_width_mm']:.3f})", ha="center", fontsize=8)
+    axes[1].set(xlabel="t, across the centre line (mm)", ylabel="depth below the skin level (um)", title="cross-section in the middle")
+    axes[1].invert_yaxis()
+    axes[2].plot(trace.s_um / 1000, trace.floor_depth_um, color="0.6", lw=1, label="floor depth")
+    axes[2].plot(trace.s_um / 1000, trace.window_mean_depth_um, color="k", label="its mean over 1 mm (mirrored at the ends)")
+    axes[2].axhline(w.max_depth_um, color="tab:red", lw=1, label=f"max depth {w.max_depth_um:.1f} um (truth {truth['max_depth_um']:.1f})")
+    axes[2].axhline(w.mean_depth_um, color="tab:blue", lw=1, ls="--", label=f"mean depth {w.mean_depth_um:.1f} um (truth {truth['mean_depth_um']:.1f})")
+    axes[2].set(xlabel=f"s, along the centre line (mm); length {w.length_mm:.2f} (truth {truth['length_mm']:.2f})", ylabel="depth (um)",
+                title="along the centre line (ends at half depth)", ylim=(0, 1.25 * w.max_depth_um))
+    axes[2].legend(fontsize=8, loc="lower center")
+    fig.tight_layout()
+    out = Path(__file__).parent.parent / "docs" / "images" / "wrinkle-measures.png"
+    fig.savefig(out, dpi=110)
+    print("wrote", out)
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 120)
+    if sys.argv[1:] == ["--figure"]:
+        figure()
+    else:
+        main(int(sys.argv[1]) if len(sys.argv) > 1 else 120)

@@ -100,14 +100,34 @@ class Wrinkle:
 
 
 @dataclass(frozen=True, eq=False)
+class WrinkleTrace:
+    """Where a wrinkle was measured: its centre line and half-depth edges (pixel coordinates,
+    row and column, every half pixel of arc length), the floor depth along the line (um, at arc
+    lengths ``s_um``) and its mean over the depth window (the profile the max and mean depth
+    come from), and the cross-section in the middle of the line (offsets ``t_um`` across it,
+    depth ``depth_um``)."""
+
+    s_um: np.ndarray
+    floor_depth_um: np.ndarray
+    window_mean_depth_um: np.ndarray
+    centre_px: np.ndarray  # (n, 2)
+    lower_edge_px: np.ndarray  # (n, 2)
+    upper_edge_px: np.ndarray  # (n, 2)
+    t_um: np.ndarray
+    depth_um: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class WrinkleMeasures:
     """Per-wrinkle measures, field totals, the wrinkle ids (on each wrinkle's core, the
-    segmentation's half-depth region) and the centre lines they were measured along."""
+    segmentation's half-depth region), the centre lines they were measured along, and one
+    :class:`WrinkleTrace` per wrinkle (in the order of ``wrinkles``)."""
 
     wrinkles: list
     totals: dict
     labels: np.ndarray
     lines: np.ndarray
+    traces: tuple = ()
 
     def as_dict(self):
         return {"wrinkles": [asdict(w) for w in self.wrinkles], "totals": self.totals}
@@ -375,7 +395,7 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
 
     extent_labels = label(extent_any)
     order = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
-    wrinkles, ids, lines = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool)
+    wrinkles, ids, lines, traces = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool), []
     half_area_total = 0.0
     step = 0.5 * min(dy, dx)
     for region in order:
@@ -443,7 +463,13 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         centre_columns = np.clip(np.rint(frame.columns[centre, on_line]).astype(int), 0, core.shape[1] - 1)
         lines[window][centre_rows, centre_columns] = True
         half_area_total += float(np.sum(widths) * step)
-    return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, lines)
+        offset = np.array([window[0].start, window[1].start], float)
+        normal = np.stack([frame.tangent[on_line, 1], -frame.tangent[on_line, 0]], axis=-1) / np.asarray(height.spacing)
+        centre_px = np.stack([frame.rows[centre, on_line], frame.columns[centre, on_line]], axis=-1)
+        middle = (first + last) // 2
+        traces.append(WrinkleTrace(frame.s[on_line] - frame.s[first], floor_depth, stretch, centre_px + offset, centre_px + offset + lower[:, None] * normal,
+                                   centre_px + offset + upper[:, None] * normal, frame.t, depth[:, middle]))
+    return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, lines, tuple(traces))
 
 
 def _totals(wrinkles, height, half_area_um2):
