@@ -164,6 +164,21 @@ def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
 
 
+def segmentation_from_labels(labels, spacing) -> WrinkleSegmentation:
+    """A :class:`WrinkleSegmentation` of known wrinkles (half-depth regions ``labels``, e.g. the
+    simulator's ground truth), so that their measures can be read from any height map of the
+    same skin (:func:`skintopo.evaluation.wrinkle_max_depths`). Each wrinkle's extent (its
+    walls) is its region widened by its own mean width (area / major axis length)."""
+    labels = np.asarray(labels, dtype=np.int32)
+    dy, dx = np.broadcast_to(np.asarray(spacing, float), 2)
+    widths = np.zeros(int(labels.max()) + 1)
+    for region in regionprops(labels):
+        widths[region.label] = region.area * dy * dx / max(region.axis_major_length * min(dy, dx), min(dy, dx))
+    distance, (rows, columns) = scipy.ndimage.distance_transform_edt(labels == 0, sampling=(dy, dx), return_indices=True)
+    extent = distance <= widths[labels[rows, columns]]
+    return WrinkleSegmentation(labels, skeletonize(labels > 0), extent, np.full(labels.shape, np.nan), {"from": "labels"})
+
+
 def _relabel(labels):
     """Consecutive ids 1..n in order of first appearance (row-major)."""
     values, first = np.unique(labels.ravel(), return_index=True)

@@ -433,7 +433,13 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
             beyond = end + outward
             if 0 <= beyond < frame.s.size and np.isfinite(profile[beyond]) and profile[end] > profile[beyond]:
                 length += step * (profile[end] - threshold) / (profile[end] - profile[beyond])
-        line_depth = profile[on_line]
+        # Where the centre line crosses another wrinkle or leaves the field, its depth is
+        # interpolated along s from the samples on either side.
+        centre = int(np.abs(frame.t).argmin())
+        on = np.flatnonzero(inside[centre, on_line])
+        line_s = frame.s[on_line]
+        line_depth = np.interp(line_s, line_s[on], profile[on_line][on])
+        floor_depth = np.interp(line_s, line_s[on], depth[centre, on_line][on])
         # Width at half depth of each cross-section, perpendicular to the centre line.
         lower, upper = cross_section_edges(frame, depth[:, on_line], depth_fraction * line_depth)
         widths = upper - lower
@@ -446,12 +452,11 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         # Max and mean depth from one profile: the floor's depth along the centre line averaged
         # over ``depth_window_um`` (mirrored at the line's ends, so its mean is the line's);
         # the maximum is the deepest such stretch, so mean <= max always.
-        centre = int(np.abs(frame.t).argmin())
-        floor_depth = np.where(inside[centre, on_line], depth[centre, on_line], line_depth)
         stretch = scipy.ndimage.uniform_filter1d(floor_depth, min(_samples(depth_window_um, frame), floor_depth.size), mode="reflect")
         max_depth, mean_depth = float(stretch.max()), float(stretch.mean())
         orientation = axial_mean_deg(frame.direction_deg()[on_line])
-        row, column = region.centroid
+        row, column = (float(c) for c in region.centroid)
+        length = float(length)
         new_id = len(wrinkles) + 1  # ids 1..n without gaps (a wrinkle without a measurable line is skipped)
         wrinkles.append(Wrinkle(
             id=new_id, centroid_x_mm=column * dx / 1000, centroid_y_mm=row * dy / 1000, length_mm=length / 1000,
