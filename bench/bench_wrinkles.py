@@ -4,7 +4,8 @@ the speed of the wrinkle measures on a 1000 x 1000 map.
 Fields: ``synth.random_wrinkle_spec`` (two wrinkles, V/U/G, 0.15-1.2 mm wide, 20-300 um deep,
 2.5-5 mm long, straight or arcs of 5-50 mm radius; 384 x 384 pixels of 20 um), seeds 0..N-1:
 microrelief (furrows 20-60 um and roughness) on even seeds, off on odd ones; every fifth seed a
-crossing pair. Truth: ``synth.geometric_measures`` (the wrinkle alone, never filtered).
+crossing pair. Truth: ``synth.geometric_measures`` (the wrinkle alone, never filtered). The
+closing and profile lengths were chosen looking at seeds 0-29; seeds 30 and up are held out.
 
 Reported: per measure, the share of found wrinkles within the issue's tolerance (5% max/mean
 depth and length, 10% width and volume) and the median |error|; detection of every wrinkle at
@@ -84,7 +85,9 @@ def main(n):
     per_field = [field(seed) for seed in range(n)]
     rows = [r for field_rows, _ in per_field for r in field_rows]
     groups = {"all": lambda r: True, "smooth skin, no crossing": lambda r: not r["microrelief"] and not r["crossing"],
-              "microrelief, no crossing": lambda r: r["microrelief"] and not r["crossing"], "crossing pairs": lambda r: r["crossing"]}
+              "microrelief, no crossing": lambda r: r["microrelief"] and not r["crossing"],
+              "microrelief, no crossing, seeds 30 and up": lambda r: r["microrelief"] and not r["crossing"] and r["seed"] >= 30,
+              "crossing pairs": lambda r: r["crossing"]}
     result = {"benchmark": f"wrinkle measures against the geometry, {n} random fields (issue 17)", "tolerances": TOLERANCES}
     for name, keep in groups.items():
         seeds = sorted({r["seed"] for r in rows if keep(r)})

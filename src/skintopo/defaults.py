@@ -33,7 +33,7 @@ DEFAULT_MIN_DEPTH_UM = 25.0
 DEFAULT_MIN_LENGTH_UM = 1500.0
 
 DEFAULT_FURROW_CLOSING_UM = 200.0  # wrinkles: closing segment that fills the skin's furrows around a wrinkle
-DEFAULT_ALONG_CLOSING_UM = 500.0  # wrinkles: closing segment along a wrinkle that bridges crossing furrows
+DEFAULT_ALONG_CLOSING_UM = 1000.0  # wrinkles: closing segment along a wrinkle that bridges crossing furrows
 DEFAULT_DEPTH_WINDOW_UM = 1000.0  # wrinkles: max depth = the deepest stretch of centre line this long
 DEFAULT_DEPTH_SHORT_CUTOFF_UM = 0.0  # wrinkles: S-filter of the depth (0 = none: it fills narrow floors)
 

@@ -241,6 +241,29 @@ def sphere_fit(height: HeightMap):
     return radius, centre + offset
 
 
+def coarse_areal_gaussian_filter(z, spacing, cutoff_um, mask, samples_per_sigma=8):
+    """:func:`areal_gaussian_filter` of a wide filter computed on a grid of block means of the
+    valid points, with at least ``samples_per_sigma`` samples per Gaussian sigma, and
+    interpolated back (bilinear, block centres). A 2.5 mm regression of a 20 um map runs on a
+    grid 2 x coarser per axis (0.53 s -> 0.16 s at 1000 x 1000); the Gaussian's transfer at
+    the coarse grid's Nyquist frequency is below 1e-100, so what the block means alias is
+    filtered out. It differs from the full filter where the regression fills masked points
+    (the blocks at a mask's edge are partly valid): on a levelled simulated forehead with a
+    100-pixel masked band, by at most 0.22 um (99th percentile 0.035 um); 4 samples per sigma
+    gave 1.0 um there, too much under a shallow wrinkle."""
+    dy, dx = pixel_spacing(spacing)
+    factor = max(1, int(min(gaussian_sigma_px(cutoff_um, dy), gaussian_sigma_px(cutoff_um, dx)) / samples_per_sigma))
+    if factor == 1:
+        return areal_gaussian_filter(z, spacing, cutoff_um, mask)
+    valid = np.asarray(mask, dtype=bool) & np.isfinite(z)
+    weight, total = block_mean(valid, factor), block_mean(np.where(valid, z, 0.0), factor)
+    coarse_valid = weight > 0
+    low = areal_gaussian_filter(np.where(coarse_valid, total / np.where(coarse_valid, weight, 1.0), 0.0), (dy * factor, dx * factor),
+                                cutoff_um, coarse_valid)
+    rows, columns = ((np.arange(n) + 0.5) / factor - 0.5 for n in np.shape(z))
+    return scipy.ndimage.map_coordinates(low, np.meshgrid(rows, columns, indexing="ij"), order=1, mode="nearest")
+
+
 def block_mean(image, factor):
     """Means over factor x factor blocks, the image zero-padded to whole blocks (weigh by the
     block mean of a validity image to undo the padding where it matters). Summed with strided

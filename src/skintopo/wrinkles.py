@@ -1,63 +1,43 @@
 """Per-wrinkle measures from a height map and its wrinkle segmentation.
 
-Depth is measured from the skin's surface, the plateaus of the microrelief, not from its
-mean level: skin is plateaus cut by furrows (20-200 um deep, about 0.1 mm wide), and where a
-furrow crosses a wrinkle's floor it deepens it locally; the mean level of the skin around
-a wrinkle sits below the plateaus by an amount that varies with the furrows' local depth.
-Both made the measures of shallow wrinkles (50 um among 20-60 um furrows, simulator) off
-by up to 25% in depth and 38% in volume.
-The furrows are therefore removed first, with the closing filter (ISO 16610-41/-81: the
-upper envelope of a level line segment, :func:`~skintopo.filters.line_segment_closing`):
+The definitions are written out in ``docs/wrinkle-measures.md`` (with a figure); the simulator's
+ground truth (:func:`skintopo.synth.geometric_measures`) applies the same definitions to the
+exact geometry. In short:
 
-* around the wrinkles: the largest of four closings with a ``furrow_closing_um`` (0.2 mm)
-  segment at 0, 45, 90 and 135 degrees, which fills every furrow narrower than the segment
-  along some direction (each furrow crosses one of the four at 45 degrees or more);
-* on each wrinkle (its extent widened by ``margin_um``): a closing
-  with an ``along_closing_um`` (0.5 mm) segment laid along the centre line's local direction
-  (in 1-degree steps), which bridges the furrows crossing the wrinkle and leaves the wrinkle,
-  long in that direction, as it is. It leaves the furrows that run along the wrinkle, which
-  the four-way closing fills; their mean depth, measured with the same closing on the skin
-  around the wrinkle, is added back, so both closings share one level.
+* Depth d (um, positive in the wrinkle) below the **local skin level**: the skin's plateaus,
+  not its mean level (skin is plateaus cut by furrows 20-200 um deep, about 0.1 mm wide). The
+  furrows are filled by the largest of four closings (ISO 16610-41/-81, the upper envelope of
+  a level line segment, :func:`~skintopo.filters.line_segment_closing`) with a
+  ``furrow_closing_um`` (0.2 mm) segment at 0, 45, 90 and 135 degrees, and that plateau
+  surface is carried under the wrinkles by the ISO 16610-61 Gaussian regression filter
+  (``reference_cutoff_um``, 2.5 mm) over the skin outside them (widened by ``margin_um``).
+  The least-squares quadratic form of that skin is removed first (the regression passes
+  planes but lifts a curved forehead's level by sigma^2 / (2 R)). No smoothing filter
+  touches the wrinkle: ``short_cutoff_um`` (an S-filter of the height) is 0 by default,
+  because a 0.25 mm S-filter made 0.4-0.6 mm wide wrinkles read 10-25% shallower.
+* Each wrinkle is measured in **its own frame** (:class:`WrinkleFrame`): s along its centre
+  line, t across it, sampled every half pixel with a cubic spline. The first centre line is
+  the longest path through the skeleton of the segmentation's half-depth region (its pieces
+  chained along their principal axis); the centre line is then moved to the middle of the
+  half-depth cross-sections (:func:`midline`) and smoothed (Savitzky-Golay), and extended
+  straight beyond both ends.
+* In the frame, the furrows crossing the wrinkle are bridged by a closing along s with a
+  ``along_closing_um`` (1 mm) segment, which lies exactly along the floor and so does not
+  lift it (:func:`depth_in_frame`); the mean depth of the furrows it leaves (those running
+  along the wrinkle) is measured on the skin in the frame and added back.
+* ``length_mm``: arc length between the two ends at half depth (where the floor depth,
+  averaged over 0.25 mm, falls below half its largest value); ``max_depth_um``: the largest
+  mean of the floor depth over ``depth_window_um`` (1 mm) of centre line; ``mean_depth_um``:
+  its mean along the line (both from one profile: mean <= max always); ``mean_width_mm``:
+  mean width at half the floor depth, perpendicular to the line; ``volume_mm3``: the signed
+  depth integrated over the wrinkle and its walls with the frame's area element;
+  ``cross_section_mm2`` = volume / length; ``orientation_deg``: the axial (doubled-angle)
+  mean of the line's direction, counter-clockwise from +x (y up), in [0, 180);
+  ``severity`` = mean depth (um) x length (mm) / 100, a ranking aid, not a clinical grade.
 
-The least-squares quadratic form is removed before (so the reference's regression, which
-passes planes, does not lift a curved forehead's level), and all measures are then taken on
-the scale-limited surface: the furrow-free height is
-S-filtered with the ISO Gaussian at ``short_cutoff_um`` (default 0.25 mm), as ISO 25178
-measures are always taken on an S-filtered surface.
-
-Local surrounding skin level: the S-filtered furrow-free height is low-passed at
-``reference_cutoff_um`` (default 2.5 mm) with the wrinkles (their full extent, widened by
-``margin_um``) masked out; the first-order Gaussian regression fills them from the skin
-around them. The wrinkle depth is d = reference - height, positive in the wrinkle.
-
-For each wrinkle (ids 1..n ordered by the centroid, top to bottom then left to right, so the
-same map always gives the same ids):
-
-* centre line: the longest path through the skeleton of the wrinkle's half-depth region
-  (per piece, if the region is broken; side branches of the skeleton are not length),
-  trimmed at each end to where d is at least half the maximum depth (which cuts a furrow
-  continuing the wrinkle's line, and drops a piece that is no part of its floor);
-  ``length_mm``: the pieces' lengths (8-connected steps of 1 or sqrt(2) pixels) plus the
-  gaps between them, plus, at each of the two outer ends the skeleton stopped short of, the
-  straight run on to where d falls below half the maximum depth (at most half a width): the
-  length at half depth;
-* ``orientation_deg``: of the region's major axis, counter-clockwise from +x (y up), in
-  [0, 180);
-* ``max_depth_um``: the median of d over the deepest part of the skeleton's longest paths
-  (where d is at least 0.6 x its 95th percentile): the depth of the wrinkle's floor;
-  ``mean_depth_um``: mean of d along the centre line;
-* ``mean_width_mm`` at half depth: area where d >= 0.5 x the local centre-line depth (a
-  Gaussian average of the centre line's depths, about one width wide), within one core width
-  of the centre line, divided by the length;
-* ``volume_mm3``: integral of the signed d over the half-depth region widened by half a
-  width plus ``margin_um`` (other wrinkles left out); signed, because what is left of the skin's
-  relief after the closing has zero mean about the reference level;
-  ``cross_section_mm2`` = volume / length;
-* ``severity`` = mean depth (um) x length (mm) / 100: a depth-length index that grows with
-  either; a ranking aid within a study, not a clinical grading scale.
-
-Field totals: count, total length, length-weighted mean depth, and the wrinkle area
-fraction (half-depth area / measured area).
+Ids 1..n follow the centroids, top to bottom then left to right. Field totals: count, total
+length, length-weighted mean depth, axial mean orientation and the wrinkle area fraction
+(half-depth area / measured area).
 """
 
 from __future__ import annotations
@@ -73,13 +53,14 @@ from skimage.morphology import skeletonize
 
 from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTOFF_UM, DEFAULT_DEPTH_WINDOW_UM, DEFAULT_FURROW_CLOSING_UM
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, line_segment_closing, polynomial_form
+from skintopo.filters import areal_gaussian_filter, coarse_areal_gaussian_filter, line_segment_closing, polynomial_form
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation
 
 DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
+PROFILE_SMOOTHING_UM = 250.0
 
 
 @dataclass(frozen=True)
@@ -199,9 +180,12 @@ class WrinkleFrame:
     step_um: float
     spacing: tuple  # of the image's pixels (row, column), um
 
-    def sample(self, image, order=1):
-        """``image`` at the frame's samples (spline of ``order``; nearest beyond the edges)."""
-        return scipy.ndimage.map_coordinates(np.asarray(image, float), [self.rows, self.columns], order=order, mode="nearest")
+    def sample(self, image, order=1, prefiltered=False):
+        """``image`` at the frame's samples (spline of ``order``; nearest beyond the edges).
+        ``prefiltered``: ``image`` already holds the spline coefficients
+        (``scipy.ndimage.spline_filter(..., mode="nearest")``), shared between frames."""
+        return scipy.ndimage.map_coordinates(np.asarray(image, float), [self.rows, self.columns], order=order, mode="nearest",
+                                             prefilter=not prefiltered)
 
     def direction_deg(self):
         """Direction of the centre line at each s, counter-clockwise from +x (y up), in [0, 180)."""
@@ -246,9 +230,10 @@ def wrinkle_frame(path, spacing, *, smoothing_um, extension_um, half_span_um, st
                         tuple(spacing))
 
 
-def depth_in_frame(frame: WrinkleFrame, z, reference, plateau, around, others, near, along_closing_um):
+def depth_in_frame(frame: WrinkleFrame, z_spline, reference, plateau, around, others, near, along_closing_um):
     """Depth below the surrounding skin in a wrinkle's frame, and where it belongs to the
-    wrinkle (inside ``near``, not in ``others``).
+    wrinkle (inside ``near``, not in ``others``); ``z_spline``: the cubic spline coefficients
+    of the height (``scipy.ndimage.spline_filter(z, 3, mode="nearest")``).
 
     Crossing furrows are bridged by a closing of ``z`` along s with a ``along_closing_um``
     segment: in the wrinkle's own frame the segment lies exactly along the wrinkle, so it does
@@ -259,7 +244,7 @@ def depth_in_frame(frame: WrinkleFrame, z, reference, plateau, around, others, n
     """
     others = frame.sample(others, order=0) > 0.5
     inside = (frame.sample(near, order=0) > 0.5) & ~others
-    closed = scipy.ndimage.grey_closing(frame.sample(z, order=3), size=(1, _samples(along_closing_um, frame)), mode="nearest")
+    closed = scipy.ndimage.grey_closing(frame.sample(z_spline, order=3, prefiltered=True), size=(1, _samples(along_closing_um, frame)), mode="nearest")
     ring = (frame.sample(around, order=0) > 0.5) & ~others
     left_by_along = float(np.mean(frame.sample(plateau)[ring] - closed[ring])) if ring.any() else 0.0
     return frame.sample(reference) - (closed + left_by_along), inside
@@ -388,7 +373,7 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         z = areal_gaussian_filter(z, height.spacing, short_cutoff_um, height.mask)
     height = HeightMap(z, height.spacing, height.mask)
     plateau = plateau_surface(height, furrow_closing_um)
-    reference = areal_gaussian_filter(plateau, height.spacing, reference_cutoff_um, around)
+    reference = coarse_areal_gaussian_filter(plateau, height.spacing, reference_cutoff_um, around)
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
@@ -410,17 +395,17 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         core = core_full[window]
         near = scipy.ndimage.binary_dilation(whole_full[window], iterations=margin_px)
         frame_options = dict(smoothing_um=along_closing_um, extension_um=extension, half_span_um=half_span, step_um=step)
-        maps = (z[window], reference[window], plateau[window], around[window], (extent_any & ~whole_full)[window],
+        maps = (scipy.ndimage.spline_filter(z[window], order=3, mode="nearest"), reference[window], plateau[window], around[window], (extent_any & ~whole_full)[window],
                 near & height.mask[window], along_closing_um)
         first_frame = wrinkle_frame(chained_path(centre_lines(skeletonize(core), height.spacing), height.spacing),
                                     height.spacing, **frame_options)
         depth, inside = depth_in_frame(first_frame, *maps)
-        profile = floor_profile(first_frame, depth, inside, along_closing_um)
+        profile = floor_profile(first_frame, depth, inside, PROFILE_SMOOTHING_UM)
         if not np.isfinite(profile).any():
             continue
         frame = wrinkle_frame(midline(first_frame, depth, profile, depth_fraction, extension), height.spacing, **frame_options)
         depth, inside = depth_in_frame(frame, *maps)
-        profile = floor_profile(frame, depth, inside, along_closing_um)
+        profile = floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM)
         if not np.isfinite(profile).any():
             continue
         threshold = depth_fraction * float(profile.max())
