@@ -148,3 +148,22 @@ def test_orientation_centroid_and_severity_of_a_known_straight_wrinkle(angle):
     centre_x_mm, centre_y_mm = (2560 + 300) / 1000, (2560 + 200) / 1000  # image coordinates: x right, rows down from the top
     assert w.centroid_x_mm == pytest.approx(centre_x_mm, abs=0.1) and w.centroid_y_mm == pytest.approx(centre_y_mm, abs=0.1)
     assert w.severity == pytest.approx(w.mean_depth_um * w.length_mm / 100, rel=1e-12)
+
+
+def test_one_wrinkle_has_one_true_depth_in_synth_wrinkles_and_evaluate(tmp_path):
+    """Once a 120 um wrinkle had three 'true depths': 120 in surface.json, 152 from evaluate (ring
+    median minus the lowest point, a furrow counted), 112 from wrinkles. Now surface.json holds
+    the geometric measures, and evaluate and wrinkles read the same definition from the truth."""
+    from skintopo.evaluation import evaluate_height
+
+    spec = dataclasses.replace(preset_spec("forehead-moderate", size_px=256), microrelief=False)
+    surface = make_surface(spec, seed=1)
+    assert main(["synth", "-o", str(tmp_path / "acq"), "--preset", "forehead-moderate", "--size", "64", "-q"]) == 0
+    written = json.loads((tmp_path / "acq" / "ground_truth" / "surface.json").read_text())
+    assert [m["max_depth_um"] for m in written["wrinkle_measures"]] == [w["depth_um"] for w in written["surface"]["wrinkles"]]
+    report = evaluate_height(surface.height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    for index, wrinkle in enumerate(spec.wrinkles):
+        from_wrinkles = match_wrinkle(measures, surface.wrinkle_labels == index + 1).max_depth_um
+        assert report["wrinkle_max_depth_true_um"][index] == pytest.approx(from_wrinkles, rel=0.01)
+        assert report["wrinkle_max_depth_true_um"][index] == pytest.approx(wrinkle.depth_um, rel=0.02)

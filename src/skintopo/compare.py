@@ -256,7 +256,10 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
             other = wrinkles_after.wrinkles[partner - 1]
             record.update({name: _change(getattr(wrinkle, name), getattr(other, name)) for name in fields})
         per_wrinkle[wrinkle.id] = record
-    totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals}
+    # (the mean orientation is an axial angle: 179 -> 1 degrees is a change of 2, not -178; it
+    # is reported per visit, not as a change)
+    totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals
+              if not name.endswith("_deg")}
     aligned_albedo = albedo_residual = None
     if baseline_albedo is not None and follow_up_albedo is not None:
         for name, image in (("baseline", baseline_albedo), ("follow-up", follow_up_albedo)):
