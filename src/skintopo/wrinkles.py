@@ -60,7 +60,7 @@ from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, Wrin
 DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
-PROFILE_SMOOTHING_UM = 250.0
+PROFILE_SMOOTHING_UM = 250.0  # the floor depth is averaged over this to find the ends at half depth
 
 
 @dataclass(frozen=True)
@@ -250,13 +250,13 @@ def depth_in_frame(frame: WrinkleFrame, z_spline, reference, plateau, around, ot
     return frame.sample(reference) - (closed + left_by_along), inside
 
 
-def floor_profile(frame: WrinkleFrame, depth, inside, along_closing_um):
-    """The depth on the centre line (t = 0) averaged along s over ``along_closing_um`` (what
-    the closing and the reference leave of the roughness is noise that a maximum would pick);
-    -inf where the centre line is not inside the wrinkle."""
+def floor_profile(frame: WrinkleFrame, depth, inside, smoothing_um):
+    """The depth on the centre line (t = 0) averaged along s over ``smoothing_um`` (what the
+    closing and the reference leave of the roughness is noise that a threshold would cross
+    back and forth); -inf where the centre line is not inside the wrinkle."""
     centre = int(np.abs(frame.t).argmin())
     valid = inside[centre]
-    n = _samples(along_closing_um, frame)
+    n = _samples(smoothing_um, frame)
     total = scipy.ndimage.uniform_filter1d(np.where(valid, depth[centre], 0.0), n, mode="nearest")
     share = scipy.ndimage.uniform_filter1d(valid.astype(float), n, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -395,8 +395,8 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         core = core_full[window]
         near = scipy.ndimage.binary_dilation(whole_full[window], iterations=margin_px)
         frame_options = dict(smoothing_um=along_closing_um, extension_um=extension, half_span_um=half_span, step_um=step)
-        maps = (scipy.ndimage.spline_filter(z[window], order=3, mode="nearest"), reference[window], plateau[window], around[window], (extent_any & ~whole_full)[window],
-                near & height.mask[window], along_closing_um)
+        maps = (scipy.ndimage.spline_filter(z[window], order=3, mode="nearest"), reference[window], plateau[window],
+                around[window], (extent_any & ~whole_full)[window], near & height.mask[window], along_closing_um)
         first_frame = wrinkle_frame(chained_path(centre_lines(skeletonize(core), height.spacing), height.spacing),
                                     height.spacing, **frame_options)
         depth, inside = depth_in_frame(first_frame, *maps)
