@@ -31,6 +31,7 @@ DEFAULT_CUTOFF_UM = 8000.0  # segmentation: lambda_c of the band-pass
 DEFAULT_SHORT_CUTOFF_UM = 600.0  # segmentation: lambda_s of the band-pass
 DEFAULT_MIN_DEPTH_UM = 25.0
 DEFAULT_MIN_LENGTH_UM = 1500.0
+DEFAULT_STRAIGHT_VALLEY_UM = 1500.0  # segmentation: also find valleys straight over this length (0 = band-pass only)
 
 DEFAULT_FURROW_CLOSING_UM = 200.0  # wrinkles: closing segment that fills the skin's furrows around a wrinkle
 DEFAULT_ALONG_CLOSING_UM = 1000.0  # wrinkles: closing segment along a wrinkle that bridges crossing furrows

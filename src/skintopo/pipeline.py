@@ -36,6 +36,7 @@ from skintopo.segmentation import (
     DEFAULT_MIN_DEPTH_UM,
     DEFAULT_MIN_LENGTH_UM,
     DEFAULT_SHORT_CUTOFF_UM,
+    DEFAULT_STRAIGHT_VALLEY_UM,
     WrinkleSegmentation,
     segment_wrinkles,
 )
@@ -100,6 +101,7 @@ class SegmentationOptions:
     short_cutoff_um: float = DEFAULT_SHORT_CUTOFF_UM
     min_depth_um: float = DEFAULT_MIN_DEPTH_UM
     min_length_um: float = DEFAULT_MIN_LENGTH_UM
+    straight_valley_um: float = DEFAULT_STRAIGHT_VALLEY_UM
 
     def as_kwargs(self):
         return asdict(self)

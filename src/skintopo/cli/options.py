@@ -26,6 +26,7 @@ from skintopo.defaults import (
     DEFAULT_SHADOW_FRACTION,
     DEFAULT_SHORT_CUTOFF_UM,
     DEFAULT_SOLVER,
+    DEFAULT_STRAIGHT_VALLEY_UM,
     HEIGHT_MAP_SUFFIXES,
     HEIGHT_METHODS,
     HIGHLIGHT_MODES,
@@ -149,7 +150,7 @@ def segmentation_options(args):
     from skintopo.pipeline import SegmentationOptions
 
     return SegmentationOptions(cutoff_um=args.cutoff_um, short_cutoff_um=args.short_cutoff_um, min_depth_um=args.min_depth_um,
-                               min_length_um=args.min_length_um)
+                               min_length_um=args.min_length_um, straight_valley_um=args.straight_valley_um)
 
 
 def wrinkle_options(args):
@@ -185,6 +186,9 @@ def add_segmentation_options(parser):
                         help=f"shallowest wrinkle (default {DEFAULT_MIN_DEPTH_UM:g})")
     parser.add_argument("--min-length-um", type=positive_float, default=DEFAULT_MIN_LENGTH_UM,
                         help=f"shortest wrinkle (default {DEFAULT_MIN_LENGTH_UM:g})")
+    parser.add_argument("--straight-valley-um", type=non_negative_float, default=DEFAULT_STRAIGHT_VALLEY_UM,
+                        help="also find wrinkles as valleys straight over this length, which the band-pass misses when they are "
+                        f"narrow and shallow (default {DEFAULT_STRAIGHT_VALLEY_UM:g}; 0: the paper's band-pass alone)")
 
 
 def add_wrinkle_options(parser):
