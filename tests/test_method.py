@@ -166,6 +166,22 @@ def test_segmentation_defaults_work_on_the_presets():
     assert np.mean(ious) > 0.7 and min(ious) > 0.55
 
 
+def test_straight_valleys_find_narrow_shallow_wrinkles_the_band_pass_misses():
+    """A 54 um deep, 0.27 mm wide U wrinkle reads 22 um after the band-pass (below the 25 um
+    minimum): found as a straight valley, not by the band-pass alone; among furrows 20-60 um deep
+    (flat microrelief, 3 fields) no straight valley is taken for a wrinkle."""
+    from skintopo.synth.surfaces import SurfaceSpec, Wrinkle
+
+    for shape, curvature in (("U", 0.0), ("V", 0.05)):
+        wrinkle = Wrinkle(depth_um=54.0, width_um=273.0, length_um=4000.0, orientation_deg=8.0, shape=shape, curvature_per_mm=curvature)
+        surface = make_surface(SurfaceSpec(size_px=(320, 320), wrinkles=(wrinkle,), microrelief=False), seed=0)
+        assert segment_wrinkles(surface.height, straight_valley_um=0).count == 0
+        found = segment_wrinkles(surface.height)
+        assert found.count == 1 and segmentation_quality(found.mask, surface.wrinkle_labels > 0)["recall"] > 0.5
+    for seed in range(3):
+        assert segment_wrinkles(make_surface(preset_spec("flat-microrelief", size_px=320), seed=10 + seed).height).count == 0
+
+
 def test_correction_is_exactly_the_papers_algorithm_on_known_slopes():
     rng = np.random.default_rng(0)
     shape = (40, 50)

@@ -20,6 +20,14 @@ because the height map does not over-segment. Steps:
    (median) below the skin around it, judged on the surface S-filtered at 0.25 mm against a
    Gaussian regression (2.5 mm) over the skin outside all candidates. This removes valleys
    that the long-wave mean line invents at the field's edges next to deep wrinkles.
+6. Straight valleys (``straight_valley_um``, default 1.5 mm; 0 = steps 1-5 alone, the
+   paper's method): the band-pass's lambda_s leaves narrow shallow wrinkles below the minimum
+   depth (a 54 um deep, 0.27 mm wide one reads 22 um). Valleys that run straight over that
+   length in some direction survive the lowest of 16 line-segment closings
+   (:func:`straight_valley_depth`), the microrelief's polygons do not; such valleys at least
+   ``min_length_um`` long, outside the wrinkles already found, are added
+   (:func:`_straight_valleys`). On random simulated fields this raised the wrinkles found
+   (30 um deep or more) from 84% to 97%, with a false wrinkle in 3% of the fields.
 
 Returns wrinkle labels (0 = none, half-depth regions), the centre lines (skeleton), and the
 full extent of the kept wrinkles (their watershed basins, walls included).
