@@ -64,6 +64,7 @@ STRAIGHT_VALLEY_PIXEL_UM = 40.0
 # along a 1.5 mm segment fills part of a curved or tapered wrinkle's floor. Chosen on the
 # wrinkles that bench_wrinkles' first run missed (13 of 15 recovered, none on 6 furrowed fields).
 STRAIGHT_VALLEY_CONFIRMATION = 0.8
+STRAIGHT_VALLEY_RING_UM = 500.0  # the skin around a straight-valley candidate that it must lie below
 
 
 @dataclass(frozen=True, eq=False)
@@ -186,17 +187,39 @@ def straight_valley_depth(height: HeightMap, valid, length_um, cutoff_um):
 def _straight_valleys(height, valid, taken, cutoff_um, min_depth_um, min_length_um, window, length_um):
     """Wrinkles that the band-pass misses: valleys at least ``min_length_um`` long that run
     straight over ``length_um`` (:func:`straight_valley_depth`) and whose core lies (median)
-    at least ``STRAIGHT_VALLEY_CONFIRMATION`` x ``min_depth_um`` deep, outside the wrinkles
-    already ``taken``. The band-pass's 0.6 mm lambda_s leaves a 54 um deep, 0.27 mm wide
-    wrinkle 22 um deep, below the 25 um minimum; this depth leaves it about 45 um. Returns
-    their half-depth cores (ids 1..k) and their extent (down to a quarter of the minimum
-    depth)."""
+    at least ``STRAIGHT_VALLEY_CONFIRMATION`` x ``min_depth_um`` below the skin on each side
+    of it (a ring of 0.5 mm beyond its width, each side of its axis on its own: the
+    long-wave mean line, pulled down by deep wrinkles, makes ramps at the field's edges that
+    are low on one side only; a candidate with skin on one side only is not kept),
+    outside the wrinkles already ``taken``. The band-pass's 0.6 mm lambda_s leaves a 54 um
+    deep, 0.27 mm wide wrinkle 22 um deep, below the 25 um minimum; this depth leaves it about
+    45 um. Returns their half-depth cores (ids 1..k) and their extent (down to a quarter of
+    the minimum depth)."""
     depth = np.where(valid, straight_valley_depth(height, valid, length_um, cutoff_um), 0.0)
     local = scipy.ndimage.maximum_filter(np.where(depth > min_depth_um, depth, 0.0), size=window)
     cores = label((depth >= 0.5 * local) & (local > min_depth_um) & valid & ~taken)
     pixel = min(height.spacing)
-    kept = [r.label for r in regionprops(cores, intensity_image=depth)
-            if r.axis_major_length * pixel >= min_length_um and np.median(r.image_intensity[r.image]) >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um]
+    kept = []
+    for region in regionprops(cores):
+        if region.axis_major_length * pixel < min_length_um:
+            continue
+        inner = max(2, int(region.area / max(region.axis_major_length, 1.0)) + 2)
+        outer = inner + int(round(STRAIGHT_VALLEY_RING_UM / pixel))
+        box = tuple(slice(max(0, start - outer), stop + outer) for start, stop in zip(region.bbox[:2], region.bbox[2:]))
+        core = cores[box] == region.label
+        ring = (scipy.ndimage.binary_dilation(core, iterations=outer) & ~scipy.ndimage.binary_dilation(core, iterations=inner)
+                & valid[box] & ~taken[box] & (cores[box] == 0))
+        # each side of the valley's axis on its own (a ramp, the mean line's edge artefact, is
+        # low on one side only), and both sides present (a valley along the field's edge
+        # cannot be told from such a ramp)
+        rows, columns = np.nonzero(ring)
+        centre_row, centre_column = region.centroid[0] - box[0].start, region.centroid[1] - box[1].start
+        side = (rows - centre_row) * -np.sin(region.orientation) + (columns - centre_column) * np.cos(region.orientation) > 0
+        if min(side.sum(), (~side).sum()) < 0.25 * side.size:
+            continue
+        levels = [np.median(depth[box][rows[pick], columns[pick]]) for pick in (side, ~side)]
+        if np.median(depth[box][core]) - max(levels) >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um:
+            kept.append(region.label)
     cores = np.where(np.isin(cores, kept), cores, 0)
     walls = label((depth > 0.25 * min_depth_um) & valid & ~taken)
     walls = np.isin(walls, np.unique(walls[cores > 0])) & (walls > 0)

@@ -244,7 +244,8 @@ def depth_in_frame(frame: WrinkleFrame, z_spline, reference, plateau, around, ot
     """
     others = frame.sample(others, order=0) > 0.5
     inside = (frame.sample(near, order=0) > 0.5) & ~others
-    closed = scipy.ndimage.grey_closing(frame.sample(z_spline, order=3, prefiltered=True), size=(1, _samples(along_closing_um, frame)), mode="nearest")
+    heights = frame.sample(z_spline, order=3, prefiltered=True)
+    closed = scipy.ndimage.grey_closing(heights, size=(1, _samples(along_closing_um, frame)), mode="nearest")
     ring = (frame.sample(around, order=0) > 0.5) & ~others
     left_by_along = float(np.mean(frame.sample(plateau)[ring] - closed[ring])) if ring.any() else 0.0
     return frame.sample(reference) - (closed + left_by_along), inside
@@ -457,8 +458,9 @@ def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, sh
         normal = np.stack([frame.tangent[on_line, 1], -frame.tangent[on_line, 0]], axis=-1) / np.asarray(height.spacing)
         centre_px = np.stack([frame.rows[centre, on_line], frame.columns[centre, on_line]], axis=-1)
         middle = (first + last) // 2
-        traces.append(WrinkleTrace(frame.s[on_line] - frame.s[first], floor_depth, stretch, centre_px + offset, centre_px + offset + lower[:, None] * normal,
-                                   centre_px + offset + upper[:, None] * normal, frame.t, depth[:, middle]))
+        centre_px += offset
+        traces.append(WrinkleTrace(frame.s[on_line] - frame.s[first], floor_depth, stretch, centre_px, centre_px + lower[:, None] * normal,
+                                   centre_px + upper[:, None] * normal, frame.t, depth[:, middle]))
     return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, lines, tuple(traces))
 
 
