@@ -129,8 +129,10 @@ def wrinkle_max_depths(height: HeightMap, labels):
     return np.array(depths)
 
 
-def evaluate_height(result: HeightMap, reference: HeightMap, *, wrinkle_labels=None, register=True):
-    """All accuracy figures of ``result`` against ``reference``, as a dict (units in keys)."""
+def evaluate_height(result: HeightMap, reference: HeightMap, *, wrinkle_labels=None, register=True, reference_wrinkle_depths=None):
+    """All accuracy figures of ``result`` against ``reference``, as a dict (units in keys).
+    ``reference_wrinkle_depths``: :func:`wrinkle_max_depths` of ``reference`` when it is
+    already known (several results against one reference need it once)."""
     shift = (0.0, 0.0)
     if register:
         result, shift = register_translation(result, reference)
@@ -150,7 +152,8 @@ def evaluate_height(result: HeightMap, reference: HeightMap, *, wrinkle_labels=N
         inside = np.asarray(wrinkle_labels) > 0
         report["rms_height_error_in_wrinkles_um"] = float(np.sqrt(np.nanmean(difference[inside] ** 2)))
         aligned = HeightMap(reference.z + difference, reference.spacing)  # result levelled onto the reference
-        true_depths = wrinkle_max_depths(reference, wrinkle_labels)
+        true_depths = (wrinkle_max_depths(reference, wrinkle_labels) if reference_wrinkle_depths is None
+                       else np.asarray(reference_wrinkle_depths, dtype=float))
         found_depths = wrinkle_max_depths(aligned, wrinkle_labels)
         report["wrinkle_max_depth_true_um"] = true_depths.tolist()
         report["wrinkle_max_depth_um"] = found_depths.tolist()

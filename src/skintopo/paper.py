@@ -18,7 +18,7 @@ import numpy as np
 
 from skintopo.correction import spectral_correction
 from skintopo.defaults import DEFAULT_SKIN_OPTICS, DEFAULT_SOLVER
-from skintopo.evaluation import evaluate_height
+from skintopo.evaluation import evaluate_height, wrinkle_max_depths
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
 from skintopo.report import cross_section_pngs
@@ -61,8 +61,10 @@ def run_subject(subject: Subject, *, size_px=256, pixel_um=20.0, optics=DEFAULT_
     paper = spectral_correction(normals, pixel_um, method="paper")
     heights["algorithm"] = paper.height
     heights["algorithm-feathered"] = spectral_correction(normals, pixel_um, method="feathered", segmentation=paper.segmentation).height
+    true_depths = wrinkle_max_depths(surface.height, surface.wrinkle_labels)
     evaluations = {
-        name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+        name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False,
+                              reference_wrinkle_depths=true_depths)
         for name, height in heights.items()
     }
     return {

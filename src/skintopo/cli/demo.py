@@ -12,7 +12,7 @@ def run(args):
     import numpy as np
 
     from skintopo.acquisition import load_acquisition
-    from skintopo.evaluation import evaluate_height
+    from skintopo.evaluation import evaluate_height, wrinkle_max_depths
     from skintopo.outputs import check_output_folder, staged_output_folder, write_json
     from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_height, acquisition_summary, measure_height
     from skintopo.report import cross_section_pngs
@@ -33,8 +33,10 @@ def run(args):
         acquisition = load_acquisition(staging / "acquisition")
         made = acquisition_height(acquisition, options, shared.band_progress(args))
         heights = {band: result.height for band, result in made.bands.items()} | {"algorithm": made.height}
+        true_depths = wrinkle_max_depths(surface.height, surface.wrinkle_labels)
         evaluations = {
-            name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+            name: evaluate_height(height, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False,
+                                  reference_wrinkle_depths=true_depths)
             for name, height in heights.items()
         }
         result_folder = staging / "result"
