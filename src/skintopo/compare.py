@@ -316,6 +316,9 @@ def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> Det
     def factor(nu):
         return float(scipy.stats.t.ppf(0.5 + confidence / 2, nu) * np.sqrt(2))
 
+    def limit(e):  # t sqrt(2) s_r with s_r^2 = sum(e^2) / (2 nu)
+        return factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size)))
+
     limits, dof = {}, {}
     for group, prefix in (("texture", ""), ("totals", "wrinkles.")):
         for name in getattr(repeats[0], group):
@@ -323,7 +326,7 @@ def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> Det
             e = e[np.isfinite(e)]
             if e.size:
                 dof[prefix + name] = int(e.size)
-                limits[prefix + name] = factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size)))
+                limits[prefix + name] = limit(e)
     relative, baselines = {}, {}
     for repeat in repeats:
         for wrinkle_id, record in repeat.wrinkles.items():
@@ -334,7 +337,7 @@ def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> Det
     for (wrinkle_id, name), baseline in baselines.items():
         e = np.asarray(relative[name])
         dof[f"wrinkle{wrinkle_id}.{name}"] = int(e.size)
-        limits[f"wrinkle{wrinkle_id}.{name}"] = factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size))) * baseline
+        limits[f"wrinkle{wrinkle_id}.{name}"] = limit(e) * baseline
     warnings = []
     fewest = min(dof.values()) if dof else 0
     if fewest < MIN_DEGREES_OF_FREEDOM:

@@ -117,7 +117,8 @@ def segment_wrinkles(
     # The least-squares quadratic form (a forehead's curvature) is removed first: near the
     # field's edges the Gaussian regression cannot follow curvature, and its residual there
     # would look like valleys.
-    band = gaussian_bandpass(level(height, order=2), short_cutoff_um, cutoff_um)
+    levelled = level(height, order=2)
+    band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um)
     valid = band.mask
     depth = np.where(valid, -band.z, 0.0)
     seeds = label((depth > min_depth_um) & valid)
@@ -140,14 +141,15 @@ def segment_wrinkles(
     # group of basins holding a kept core is one wrinkle, and its cores share its id.
     basins = label((flooded >= 1) & (flooded <= n_seeds))
     kept_basins = np.unique(basins[kept])
-    kept_basins = _confirmed_against_surrounding_skin(height, valid, basins, kept, kept_basins[kept_basins > 0], short_cutoff_um, min_depth_um)
+    kept_basins = _confirmed_against_surrounding_skin(levelled, valid, basins, kept, kept_basins[kept_basins > 0], short_cutoff_um,
+                                                      min_depth_um)
     extent = np.isin(basins, kept_basins)
     # A kept wrinkle's half-depth region is all of its basin group's half-depth points, also
     # the pieces that a shallower stretch of the floor cut off from the core that passed the
     # length test (each piece alone may be short).
     labels = np.where(regions & extent, basins, 0)
     if straight_valley_um:
-        cores, walls = _straight_valleys(height, valid, extent, cutoff_um, min_depth_um, min_length_um, window, straight_valley_um)
+        cores, walls = _straight_valleys(levelled, valid, extent, cutoff_um, min_depth_um, min_length_um, window, straight_valley_um)
         labels = np.where(cores > 0, cores + basins.max(), labels)
         extent |= walls
     lines = skeletonize(labels > 0)
@@ -163,28 +165,37 @@ def segment_wrinkles(
     return WrinkleSegmentation(labels, lines, extent, np.where(valid, depth, np.nan), parameters)
 
 
-def straight_valley_depth(height: HeightMap, valid, length_um, cutoff_um):
+def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
     """Depth of the valleys that run straight for ``length_um`` in some direction: the
-    levelled height closed with a level segment of that length at each of
+    ``levelled`` height (least-squares quadratic form removed) closed with a level segment of that length at each of
     ``STRAIGHT_VALLEY_DIRECTIONS`` angles, the lowest of the closings kept (a valley survives
     the closing laid along it), below its Gaussian regression at ``cutoff_um``. Furrows of
     the microrelief (polygons of 0.1-1 mm) are filled by the closings across them and by the
     one along them where they turn. Computed on block means of at most
     ``STRAIGHT_VALLEY_PIXEL_UM`` (the cost grows as the segment's length in pixels times the
     number of pixels) and repeated back onto the pixels."""
-    factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(height.spacing)))
-    levelled = np.where(valid, level(height, order=2).z, 0.0)
+    factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
+    z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
+    closed = np.min([line_segment_closing(z, spacing, length_um, angle, coarse_valid) for angle in STRAIGHT_VALLEY_DIRECTIONS], axis=0)
+    return _expanded(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
+
+
+def _block_means_of_valid(levelled: HeightMap, valid, factor):
+    """Means of the valid heights over factor x factor blocks, the blocks that are more than
+    half valid, and the blocks' spacing."""
     weight = block_mean(valid.astype(float), factor)
     coarse_valid = weight > 0.5
-    z = np.where(coarse_valid, block_mean(levelled, factor) / np.where(coarse_valid, weight, 1.0), 0.0)
-    spacing = (height.spacing[0] * factor, height.spacing[1] * factor)
-    closed = np.min([line_segment_closing(z, spacing, length_um, angle, coarse_valid) for angle in STRAIGHT_VALLEY_DIRECTIONS], axis=0)
-    depth = areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed
-    rows, columns = height.shape
-    return depth[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
+    z = np.where(coarse_valid, block_mean(np.where(valid, levelled.z, 0.0), factor) / np.where(coarse_valid, weight, 1.0), 0.0)
+    return z, coarse_valid, (levelled.spacing[0] * factor, levelled.spacing[1] * factor)
 
 
-def _straight_valleys(height, valid, taken, cutoff_um, min_depth_um, min_length_um, window, length_um):
+def _expanded(coarse, shape, factor):
+    """A block image back on the pixels: each pixel takes its block's value."""
+    rows, columns = shape
+    return coarse[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
+
+
+def _straight_valleys(levelled, valid, taken, cutoff_um, min_depth_um, min_length_um, window, length_um):
     """Wrinkles that the band-pass misses: valleys at least ``min_length_um`` long that run
     straight over ``length_um`` (:func:`straight_valley_depth`) and whose core lies (median)
     at least ``STRAIGHT_VALLEY_CONFIRMATION`` x ``min_depth_um`` below the skin on each side
@@ -195,10 +206,10 @@ def _straight_valleys(height, valid, taken, cutoff_um, min_depth_um, min_length_
     deep, 0.27 mm wide wrinkle 22 um deep, below the 25 um minimum; this depth leaves it about
     45 um. Returns their half-depth cores (ids 1..k) and their extent (down to a quarter of
     the minimum depth)."""
-    depth = np.where(valid, straight_valley_depth(height, valid, length_um, cutoff_um), 0.0)
+    depth = np.where(valid, straight_valley_depth(levelled, valid, length_um, cutoff_um), 0.0)
     local = scipy.ndimage.maximum_filter(np.where(depth > min_depth_um, depth, 0.0), size=window)
     cores = label((depth >= 0.5 * local) & (local > min_depth_um) & valid & ~taken)
-    pixel = min(height.spacing)
+    pixel = min(levelled.spacing)
     kept = []
     for region in regionprops(cores):
         if region.axis_major_length * pixel < min_length_um:
@@ -226,7 +237,7 @@ def _straight_valleys(height, valid, taken, cutoff_um, min_depth_um, min_length_
     return label(cores > 0), walls
 
 
-def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates, short_cutoff_um, min_depth_um):
+def _confirmed_against_surrounding_skin(levelled, valid, basins, cores, candidates, short_cutoff_um, min_depth_um):
     """The candidate basins whose core lies at least ``min_depth_um`` (median) below the skin
     around them. The band-pass's long-wave mean line is pulled down by deep wrinkles and
     cannot follow the field's edges, so a smooth corner can look like a valley; the local
@@ -235,22 +246,18 @@ def _confirmed_against_surrounding_skin(height, valid, basins, cores, candidates
     a real valley is below and an edge artefact is not."""
     if candidates.size == 0:
         return candidates
-    margin_px = max(1, int(round(REFERENCE_MARGIN_UM / min(height.spacing))))
+    margin_px = max(1, int(round(REFERENCE_MARGIN_UM / min(levelled.spacing))))
     skin = valid & ~scipy.ndimage.binary_dilation(np.isin(basins, candidates), iterations=margin_px)
     if skin.sum() < 0.05 * valid.sum():
         return candidates  # too little skin to judge: keep them all
     # Both filters are smooth on the scale of lambda_s, so they run on a grid of block means
     # whose pixel is at most lambda_s / 6 (4 samples per Gaussian sigma of the S-filter).
-    factor = max(1, int(min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM) / 6 // max(height.spacing)))
-    levelled = np.where(valid, level(height, order=2).z, 0.0)
-    z, weight, skin_share = (block_mean(a, factor) for a in (levelled, valid.astype(float), skin.astype(float)))
-    spacing = (height.spacing[0] * factor, height.spacing[1] * factor)
-    coarse_valid = weight > 0.5
-    z = np.where(coarse_valid, z / np.where(coarse_valid, weight, 1.0), 0.0)
+    factor = max(1, int(min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM) / 6 // max(levelled.spacing)))
+    z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
+    skin_share = block_mean(skin.astype(float), factor)
     fine = areal_gaussian_filter(z, spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), coarse_valid)
     below = areal_gaussian_filter(fine, spacing, REFERENCE_CUTOFF_UM, coarse_valid & (skin_share > 0.5)) - fine
-    rows, columns = height.shape
-    below = below[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
+    below = _expanded(below, levelled.shape, factor)
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
 
 
