@@ -109,10 +109,11 @@ def read_measurement_values(folder):
 def comparison_rows(comparison, limits=None):
     """One row per changed quantity of a :class:`skintopo.compare.Comparison`: texture
     parameters, wrinkle totals (``wrinkles.name``) and matched wrinkles (``wrinkleN.measure``),
-    with the detection limit from a repeat pair where one was given."""
+    with the detection limit from repeat captures where they were given."""
     limits = limits or {}
     rows = [{"parameter": name, **record, "detection_limit": limits.get(name)} for name, record in comparison.texture.items()]
-    rows += [{"parameter": f"wrinkles.{name}", **record, "detection_limit": None} for name, record in comparison.totals.items()]
+    rows += [{"parameter": f"wrinkles.{name}", **record, "detection_limit": limits.get(f"wrinkles.{name}")}
+             for name, record in comparison.totals.items()]
     for wrinkle_id, record in comparison.wrinkles.items():
         for name, change in record.items():
             if isinstance(change, dict):
