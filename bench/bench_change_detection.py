@@ -77,7 +77,7 @@ def main(n):
         hit = {name: float(np.mean([t[f"treated_{repeats}"].get(f"wrinkle{t['treated_id']}.{name}", False) for t in treated]))
                for name in ("max_depth_um", "mean_depth_um", "volume_mm3")}
         untouched = [flag for t in treated for parameter, flag in t[f"treated_{repeats}"].items()
-                     if parameter.startswith("wrinkle") and not parameter.startswith(f"wrinkle{t['treated_id']}.")]
+                     if parameter.startswith("wrinkle") and not parameter.startswith(("wrinkles.", f"wrinkle{t['treated_id']}."))]
         result[repeats] = {
             "unchanged_flag_rate_worst": max(false_rates.values()),
             "unchanged_flag_rate_worst_parameter": max(false_rates, key=false_rates.get),
