@@ -1,4 +1,4 @@
-"""Benchmark: visit registration (compare.register_visits) on 512 x 512 pairs with a known
+"""Benchmark: visit registration (registration.register_height_maps) on 512 x 512 pairs with a known
 rotation and sub-pixel shift: time and recovered parameters (the test suite checks the
 accuracy on 256 x 256). Results: bench/results/registration.json.
 """
@@ -12,7 +12,7 @@ from _results import write_result  # bench/_results.py (scripts run from bench/)
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_compare import transformed_view  # noqa: E402
 
-from skintopo.compare import register_visits  # noqa: E402
+from skintopo.registration import register_height_maps  # noqa: E402
 from skintopo.heightmap import HeightMap  # noqa: E402
 from skintopo.synth import make_surface, preset_spec  # noqa: E402
 
@@ -26,7 +26,7 @@ def main():
     for angle, shift in CASES:
         follow_up = HeightMap(transformed_view(big, 512, 96, angle, shift), 20.0)
         start = time.perf_counter()
-        _, registration = register_visits(baseline, follow_up)
+        _, registration = register_height_maps(baseline, follow_up)
         seconds = time.perf_counter() - start
         rows.append({"true_rotation_deg": angle, "true_shift_px": list(shift), "rotation_deg": round(registration.rotation_deg, 6),
                      "shift_px": [round(v, 6) for v in registration.shift_px], "seconds": round(seconds, 2)})

@@ -8,7 +8,8 @@ import pytest
 import scipy.ndimage
 
 from skintopo.cli import main
-from skintopo.compare import Comparison, compare_visits, detection_limits, register_visits, residual_misalignment
+from skintopo.compare import Comparison, compare_visits, detection_limits
+from skintopo.registration import register_height_maps, residual_misalignment
 from skintopo.errors import SkinTopoError
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
@@ -33,7 +34,7 @@ def test_registration_recovers_subpixel_shift_and_rotation(angle, shift):
     big = make_surface(preset_spec("forehead-moderate", size_px=384), seed=3).height.z
     baseline = HeightMap(transformed_view(big, 256, 64, 0.0, (0, 0)), 20.0)
     follow_up = HeightMap(transformed_view(big, 256, 64, angle, shift), 20.0)
-    _, registration = register_visits(baseline, follow_up)
+    _, registration = register_height_maps(baseline, follow_up)
     print(f"true ({shift[0]}, {shift[1]}) px, {angle} deg -> ({registration.shift_px[0]:.3f}, {registration.shift_px[1]:.3f}) px, "
           f"{registration.rotation_deg:.4f} deg, residual {registration.residual_px:.3f} px")
     assert np.allclose(registration.shift_px, shift, atol=0.1)
@@ -118,7 +119,7 @@ def test_compare_command_and_bad_inputs(tmp_path, capsys):
     # no overlap (another person's skin): refused
     make_surface(spec, seed=99).height.save(tmp_path / "other.x3p")
     with pytest.raises(SkinTopoError, match="do not overlap"):
-        register_visits(HeightMap.load(tmp_path / "a.x3p"), HeightMap(np.random.default_rng(0).normal(size=(160, 160)), 20.0))
+        register_height_maps(HeightMap.load(tmp_path / "a.x3p"), HeightMap(np.random.default_rng(0).normal(size=(160, 160)), 20.0))
     # no wrinkles: texture only, clear message
     flat = preset_spec("flat-microrelief", size_px=160)
     make_surface(flat, seed=1).height.save(tmp_path / "f1.x3p")

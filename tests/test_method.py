@@ -10,7 +10,8 @@ from skintopo.acquisition import write_acquisition
 from skintopo.cli import main
 from skintopo.correction import correct_slopes, spectral_correction
 from skintopo.errors import SkinTopoError
-from skintopo.evaluation import evaluate_height, register_translation
+from skintopo.evaluation import evaluate_height
+from skintopo.registration import register_height_maps
 from skintopo.filters import (
     areal_gaussian_filter,
     extract_profile,
@@ -212,8 +213,9 @@ def test_registration_recovers_a_subpixel_shift():
     import scipy.ndimage
 
     shifted = HeightMap(scipy.ndimage.shift(surface.height.z, (1.3, -2.6), order=3, mode="nearest"), 20.0)
-    aligned, shift = register_translation(shifted, surface.height)
-    assert shift == pytest.approx((-1.3, 2.6), abs=0.1)
+    aligned, registration = register_height_maps(surface.height, shifted, rotation=False)
+    assert registration.shift_px == pytest.approx((-1.3, 2.6), abs=0.02)
+    assert registration.rotation_deg == 0.0 and registration.scale == 1.0
     report = evaluate_height(shifted, surface.height)
     assert report["rms_height_error_um"] < 1.0
 

@@ -1,21 +1,9 @@
 """Before/after comparison between visits: registration, difference map, parameter changes.
 
-Registration of a follow-up height map onto the baseline (rigid: rotation and translation,
-optionally a small scale), in two steps:
-
-1. coarse: rotation from the phase correlation of the log-polar magnitude spectra (Reddy &
-   Chatterji 1996, via scikit-image), then the translation by phase correlation;
-2. fine: the parameters minimising a robust (Cauchy) misfit sum log(1 + (r / c)^2) between
-   the baseline and the warped follow-up (cubic splines filtered once, form-levelled maps,
-   interior only; ``scipy.optimize.least_squares`` with ``loss="cauchy"``), so that what
-   changed between the visits (a treated wrinkle) weighs little. The Cauchy scale c is
-   2.385 x the median absolute residual after the coarse step.
-
-The residual misalignment is measured afterwards: tile-wise phase correlation (4 x 4 tiles)
-between the baseline and the registered follow-up; its RMS, in pixels, is reported. The
-albedo images, when given, are carried by the same transform (:func:`apply_registration`) and
-their residual misalignment is measured the same way: an independent check, since the albedo
-did not drive the registration.
+Registration of the follow-up onto the baseline: :func:`skintopo.registration.register_height_maps`
+(rigid, optionally a small scale, robust to what changed between the visits); the albedo
+images, when given, are carried by the same transform and their residual misalignment is
+measured: an independent check, since the albedo did not drive the registration.
 
 Visits with different pixel sizes are refused (resampling silently would change every
 texture parameter); no overlap is refused; a visit with no wrinkles compares its texture and
@@ -32,153 +20,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.ndimage
-import scipy.optimize
-from skimage.registration import phase_cross_correlation
-from skimage.transform import warp_polar
 
 from skintopo.defaults import DEFAULT_DETECTION_CONFIDENCE
 from skintopo.errors import SkinTopoError
-from skintopo.filters import polynomial_form
 from skintopo.heightmap import HeightMap
+from skintopo.registration import Registration, apply_registration, register_height_maps, residual_misalignment
 
-CAUCHY_FACTOR = 2.385
 MIN_DEGREES_OF_FREEDOM = 5  # detection limits from fewer differences come with a warning
-
-
-@dataclass(frozen=True)
-class Registration:
-    """Follow-up -> baseline transform (pixels, degrees counter-clockwise in the image as
-    displayed, scale) and the residual misalignment after it (pixels RMS)."""
-
-    shift_px: tuple
-    rotation_deg: float
-    scale: float
-    residual_px: float
-
-
-def _levelled(height: HeightMap):
-    return np.where(height.mask, height.z - polynomial_form(height.z, height.spacing, 2, height.mask), 0.0)
-
-
-def _warp(image, shift, angle_deg, scale, order=3, cval=np.nan, prefilter=True):
-    """Sample ``image`` at the follow-up positions of baseline pixels: x_f = s R (x_b - c) + c - t.
-
-    ``prefilter=False`` takes ``image`` as spline coefficients already
-    (``scipy.ndimage.spline_filter``), so that repeated warps of one image filter it once."""
-    rows, columns = image.shape
-    centre = np.array([(rows - 1) / 2, (columns - 1) / 2])
-    theta = np.radians(angle_deg)
-    rotation = np.array([[np.cos(theta), np.sin(theta)], [-np.sin(theta), np.cos(theta)]]) * scale
-    offset = centre - rotation @ centre - np.asarray(shift)
-    return scipy.ndimage.affine_transform(image, rotation, offset=offset, order=order, mode="constant", cval=cval, prefilter=prefilter)
-
-
-def _coarse(fixed, moving):
-    radius = min(fixed.shape) // 2
-    window = np.outer(np.hanning(fixed.shape[0]), np.hanning(fixed.shape[1]))
-    spectra = [np.abs(np.fft.fftshift(np.fft.fft2(image * window))) for image in (fixed, moving)]
-    polar = [warp_polar(np.log1p(s), radius=radius, scaling="log") for s in spectra]
-    shifts, _, _ = phase_cross_correlation(polar[0], polar[1], upsample_factor=20)
-    angle = -shifts[0] * 360.0 / polar[0].shape[0]
-    angle = (angle + 90) % 180 - 90  # the magnitude spectrum is point-symmetric: angles modulo 180
-    best = None
-    for candidate in (angle, angle + 180):
-        rotated = np.nan_to_num(_warp(moving, (0, 0), candidate, 1.0, order=1))
-        shift, error, _ = phase_cross_correlation(fixed, rotated, upsample_factor=10)
-        if best is None or error < best[2]:
-            best = (candidate, shift, error)
-    return best[0], best[1]
-
-
-def register_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, margin_fraction=0.15):
-    """Rigid (optionally similarity) registration of ``follow_up`` onto ``baseline``.
-
-    Returns
-    -------
-    aligned : HeightMap
-        The follow-up resampled on the baseline grid (NaN where it has no data).
-    registration : Registration
-    """
-    if not np.allclose(baseline.spacing, follow_up.spacing, rtol=1e-6):
-        raise SkinTopoError(
-            f"the visits have different pixel sizes ({baseline.spacing[1]:g} and {follow_up.spacing[1]:g} um): "
-            "refusing to compare (resample one to the other's pixel size first)"
-        )
-    if baseline.shape != follow_up.shape:
-        raise SkinTopoError(f"the visits have different sizes ({baseline.shape} and {follow_up.shape} pixels)")
-    fixed, moving = _levelled(baseline), _levelled(follow_up)
-    angle, shift = _coarse(fixed, moving)
-    rows, columns = fixed.shape
-    margin = int(margin_fraction * min(rows, columns)) + int(np.ceil(np.abs(shift).max()))
-    interior = (slice(margin, rows - margin), slice(margin, columns - margin))
-    if min(rows, columns) - 2 * margin < 16:
-        raise SkinTopoError(f"the visits do not overlap enough to compare (coarse shift {shift[0]:.1f}, {shift[1]:.1f} pixels)")
-    target = fixed[interior]
-    coefficients = scipy.ndimage.spline_filter(moving, order=3)  # once, not at every evaluation
-
-    def residual(parameters):
-        dy, dx, theta = parameters[:3]
-        scale = parameters[3] if allow_scale else 1.0
-        return _warp(coefficients, (dy, dx), theta, scale, prefilter=False)[interior] - target
-
-    start = np.array([shift[0], shift[1], angle] + ([1.0] if allow_scale else []))
-    first = residual(start)
-    ok = np.isfinite(first)
-    if ok.mean() < 0.5 or np.corrcoef(first[ok] + target[ok], target[ok])[0, 1] < 0.3:
-        raise SkinTopoError("the visits do not overlap: no consistent alignment of the same skin was found")
-    scale_c = CAUCHY_FACTOR * 1.4826 * np.median(np.abs(first[ok] - np.median(first[ok])))
-
-    def finite_residual(parameters):  # a sample warped in from outside the follow-up weighs nothing
-        r = residual(parameters).ravel()
-        return np.where(np.isfinite(r), r, 0.0)
-
-    # sum of log(1 + (r / c)^2): the Cauchy misfit, by trust-region least squares
-    result = scipy.optimize.least_squares(finite_residual, start, loss="cauchy", f_scale=scale_c, x_scale=np.ones_like(start),
-                                          diff_step=1e-4, xtol=1e-8, ftol=1e-10)
-    parameters = result.x
-    dy, dx, theta = parameters[:3]
-    scale = float(parameters[3]) if allow_scale else 1.0
-    aligned = _warp(np.where(follow_up.mask, follow_up.z, np.nan), (dy, dx), theta, scale, order=1)
-    aligned_height = HeightMap(aligned, baseline.spacing)
-    misalignment = residual_misalignment(fixed, np.nan_to_num(_warp(moving, (dy, dx), theta, scale)))
-    return aligned_height, Registration((float(dy), float(dx)), float(theta), scale, misalignment)
-
-
-def apply_registration(image, registration: Registration, *, order=1):
-    """An image of the follow-up visit (its albedo, say) resampled onto the baseline grid
-    with the transform found from the height maps (bilinear by default; NaN outside)."""
-    image = np.asarray(image, dtype=float)
-    if image.ndim != 2:
-        raise SkinTopoError(f"apply_registration needs a single-channel image, got shape {image.shape}")
-    return _warp(image, registration.shift_px, registration.rotation_deg, registration.scale, order=order)
-
-
-def residual_misalignment(fixed, moving, tiles=4):
-    """RMS (pixels) of the local shifts between two registered maps, one per tile of a
-    tiles x tiles grid, each found by Lucas-Kanade least squares (the shift d minimising
-    sum (moving(x + d) - fixed(x))^2 over the tile, linearised and iterated three times).
-    Phase correlation is not used here: for sub-pixel shifts of smooth content its peak
-    stays on the integer lag (a 0.5 px offset of a smooth albedo read as 0.0 in a test)."""
-    rows, columns = fixed.shape
-    th, tw = rows // tiles, columns // tiles
-    border = 3  # pixels at each tile edge left out of the sums (the shifted tile's edge values are guessed)
-    shifts = []
-    for i in range(tiles):
-        for j in range(tiles):
-            a = np.asarray(fixed[i * th : (i + 1) * th, j * tw : (j + 1) * tw], dtype=float)
-            b = np.asarray(moving[i * th : (i + 1) * th, j * tw : (j + 1) * tw], dtype=float)
-            inner = (slice(border, -border), slice(border, -border))
-            gradient = np.stack([g[inner].ravel() for g in np.gradient(a)], axis=1)
-            normal = gradient.T @ gradient
-            if a.shape[0] <= 2 * border or a.shape[1] <= 2 * border or np.linalg.cond(normal) > 1e8:
-                continue  # a flat or tiny tile says nothing about alignment
-            d = np.zeros(2)
-            for _ in range(3):
-                back = scipy.ndimage.shift(b, -d, order=3, mode="nearest")  # moving(x + d)
-                d -= np.linalg.solve(normal, gradient.T @ (back[inner] - a[inner]).ravel())
-            shifts.append(d)
-    return float(np.sqrt(np.mean(np.sum(np.square(shifts), axis=1)))) if shifts else float("nan")
 
 
 def _change(before, after):
@@ -233,7 +81,7 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
     from skintopo.texture import measure_texture, parameters_by_name
     from skintopo.wrinkles import measure_wrinkles
 
-    aligned, registration = register_visits(baseline, follow_up, allow_scale=allow_scale)
+    aligned, registration = register_height_maps(baseline, follow_up, allow_scale=allow_scale)
     common = baseline.mask & aligned.mask
     if common.sum() < 0.25 * baseline.mask.sum():
         raise SkinTopoError(f"the registered visits overlap on only {common.mean():.0%} of the field: too little to compare")

@@ -1,10 +1,10 @@
 """Accuracy of a reconstruction against a reference height map (ground truth, replica scan).
 
-* Registration: sub-pixel translation by phase correlation (scikit-image,
-  ``phase_cross_correlation`` with upsampling) of the levelled maps, refined by least
-  squares over the interior (cubic-spline shifts), then removal of the
-  least-squares plane (tilt and offset) of the difference: neither is measurable by
-  photometric stereo's integration, so neither counts as error.
+* Registration: the sub-pixel translation of :func:`skintopo.registration.register_height_maps`
+  (phase correlation, then a robust least-squares refinement: the reconstruction's own
+  errors weigh little in it), then removal of the least-squares plane (tilt and offset) of
+  the difference: neither is measurable by photometric stereo's integration, so neither
+  counts as error.
 * RMS height error (um) over the field and inside the wrinkles (paper Table 1).
 * Normal errors (paper Table 2): both normal fields from the height maps' central
   differences (the same operator on both, so discretisation cancels); L2 = mean over pixels
@@ -18,87 +18,17 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.ndimage
-from skimage.registration import phase_cross_correlation
 
 from skintopo.errors import SkinTopoError
 from skintopo.filters import polynomial_form
 from skintopo.height import height_normals
 from skintopo.heightmap import HeightMap
-
-MIN_CORRELATION = 0.3  # of the levelled maps once aligned; unrelated surfaces give about 0
-
-
-def _check_comparable(result: HeightMap, reference: HeightMap):
-    if not np.allclose(result.spacing, reference.spacing, rtol=1e-6):
-        raise SkinTopoError(
-            f"the height maps have different pixel sizes ({result.spacing[1]:g} and {reference.spacing[1]:g} um); resample one first"
-        )
-    if result.shape != reference.shape:
-        raise SkinTopoError(f"the height maps have different sizes ({result.shape} and {reference.shape} pixels)")
-
-
-def register_translation(result: HeightMap, reference: HeightMap, *, upsample=20):
-    """Shift ``result`` onto ``reference`` by the sub-pixel translation that best aligns them.
-
-    Returns
-    -------
-    aligned : HeightMap
-        ``result`` resampled (bilinear) at the shifted positions; NaN where it has no data.
-    shift_px : (float, float)
-        The (row, column) shift applied.
-    """
-    _check_comparable(result, reference)
-
-    def prepared(height):
-        z = height.z - polynomial_form(height.z, height.spacing, 1, height.mask)
-        return np.where(height.mask, z, 0.0)
-
-    fixed, moving = prepared(reference), prepared(result)
-    shift, _, _ = phase_cross_correlation(fixed, moving, upsample_factor=upsample)
-    rows, columns = result.shape
-    whole = np.round(shift).astype(int)
-    overlap_rows = slice(max(0, whole[0]), rows + min(0, whole[0]))
-    overlap_columns = slice(max(0, whole[1]), columns + min(0, whole[1]))
-    moved = np.roll(moving, tuple(whole), axis=(0, 1))[overlap_rows, overlap_columns]
-    overlap = fixed[overlap_rows, overlap_columns]
-    correlation = np.corrcoef(moved.ravel(), overlap.ravel())[0, 1] if moved.size > 16 else 0.0
-    if abs(shift[0]) > rows / 2 or abs(shift[1]) > columns / 2 or not correlation > MIN_CORRELATION:
-        raise SkinTopoError(
-            f"the fields do not overlap: best shift ({shift[0]:.1f}, {shift[1]:.1f}) pixels with correlation "
-            f"{correlation:.2f} (needs > {MIN_CORRELATION}); are these maps of the same skin?"
-        )
-    shift = _refine_shift(fixed, moving, shift)
-    if np.allclose(shift, 0, atol=1e-3):
-        return result, (0.0, 0.0)
-    z = scipy.ndimage.shift(np.where(result.mask, result.z, 0.0), shift, order=1, mode="constant", cval=np.nan)
-    coverage = scipy.ndimage.shift(result.mask.astype(float), shift, order=1, mode="constant", cval=0.0)
-    return HeightMap(np.where(coverage > 0.999, z, np.nan), result.spacing), (float(shift[0]), float(shift[1]))
-
-
-def _refine_shift(fixed, moving, start):
-    """Least-squares sub-pixel refinement of a translation: minimise the mean squared
-    difference over the interior between ``fixed`` and ``moving`` shifted by cubic splines
-    (phase correlation alone is biased by the field's edges)."""
-    from scipy.optimize import minimize
-
-    rows, columns = fixed.shape
-    margin = int(np.ceil(np.abs(start).max())) + 4
-    interior = (slice(margin, rows - margin), slice(margin, columns - margin))
-    coefficients = scipy.ndimage.spline_filter(moving, order=3)
-
-    def cost(shift):
-        moved = scipy.ndimage.shift(coefficients, shift, order=3, mode="nearest", prefilter=False)
-        return float(np.mean((moved[interior] - fixed[interior]) ** 2))
-
-    best = minimize(cost, np.asarray(start, dtype=float), method="Powell", options={"xtol": 1e-3, "ftol": 1e-10})
-    return best.x if best.fun <= cost(start) else np.asarray(start, dtype=float)
-
+from skintopo.registration import check_comparable, register_height_maps
 
 def height_difference(result: HeightMap, reference: HeightMap, mask=None):
     """result - reference with the least-squares plane of the difference removed (NaN where
     either is missing)."""
-    _check_comparable(result, reference)
+    check_comparable(result, reference)
     common = result.mask & reference.mask
     if mask is not None:
         common &= np.asarray(mask, dtype=bool)
@@ -118,15 +48,13 @@ def wrinkle_max_depths(height: HeightMap, labels):
     definition of :mod:`skintopo.wrinkles` (docs/wrinkle-measures.md), read from ``height``
     where the wrinkles are known; NaN for a wrinkle that cannot be measured there."""
     from skintopo.segmentation import segmentation_from_labels
-    from skintopo.wrinkles import measure_wrinkles
+    from skintopo.wrinkles import wrinkle_table
 
     labels = np.asarray(labels)
-    measures = measure_wrinkles(height, segmentation_from_labels(labels, height.spacing))
-    depths = []
-    for index in range(1, int(labels.max()) + 1):
-        measured = match_wrinkle(measures, labels == index)
-        depths.append(float("nan") if measured is None else measured.max_depth_um)
-    return np.array(depths)
+    table = wrinkle_table(height, segmentation_from_labels(labels, height.spacing), properties=("label", "max_depth_um"))
+    depths = np.full(int(labels.max()), np.nan)
+    depths[table["label"].astype(int) - 1] = table["max_depth_um"]
+    return depths
 
 
 def evaluate_height(result: HeightMap, reference: HeightMap, *, wrinkle_labels=None, register=True, reference_wrinkle_depths=None):
@@ -135,7 +63,8 @@ def evaluate_height(result: HeightMap, reference: HeightMap, *, wrinkle_labels=N
     already known (several results against one reference need it once)."""
     shift = (0.0, 0.0)
     if register:
-        result, shift = register_translation(result, reference)
+        result, registration = register_height_maps(reference, result, rotation=False)
+        shift = registration.shift_px
     difference = height_difference(result, reference)
     normals, normals_reference = slope_normals(result), slope_normals(reference)
     valid = np.isfinite(difference) & np.isfinite(normals).all(-1) & np.isfinite(normals_reference).all(-1)

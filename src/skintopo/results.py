@@ -16,7 +16,7 @@ from __future__ import annotations
 import csv
 import json
 import platform
-from dataclasses import asdict, fields
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -45,12 +45,12 @@ def _write_csv(path, columns, rows):
 
 def write_wrinkle_files(folder, measures, segmentation):
     """wrinkles.json (measures, totals, segmentation settings), wrinkles.csv and the id image."""
-    from skintopo.wrinkles import Wrinkle
+    from skintopo.wrinkles import WRINKLE_COLUMNS
 
     folder = Path(folder)
     data = measures.as_dict() | {"segmentation": segmentation.parameters, "units": "lengths in mm, depths in um, volume mm3"}
     write_json(folder / "wrinkles.json", data)
-    _write_csv(folder / "wrinkles.csv", [f.name for f in fields(Wrinkle)], (asdict(w) for w in measures.wrinkles))
+    _write_csv(folder / "wrinkles.csv", list(WRINKLE_COLUMNS), (asdict(w) for w in measures.wrinkles))
     write_label_image(folder / "wrinkles.png", measures.labels)
 
 

@@ -51,7 +51,7 @@ from skintopo.defaults import (
     DEFAULT_STRAIGHT_VALLEY_UM,
 )
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, block_mean, gaussian_bandpass, level, line_segment_closing
+from skintopo.filters import areal_gaussian_filter, block_mean, coarse_areal_gaussian_filter, gaussian_bandpass, level, line_segment_closing
 from skintopo.heightmap import HeightMap
 
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
@@ -246,9 +246,8 @@ def _confirmed_against_surrounding_skin(levelled, valid, basins, cores, candidat
     a real valley is below and an edge artefact is not."""
     if candidates.size == 0:
         return candidates
-    margin_px = max(1, int(round(REFERENCE_MARGIN_UM / min(levelled.spacing))))
-    skin = valid & ~scipy.ndimage.binary_dilation(np.isin(basins, candidates), iterations=margin_px)
-    if skin.sum() < 0.05 * valid.sum():
+    skin = skin_around(valid, np.isin(basins, candidates), levelled.spacing)
+    if skin is None:
         return candidates  # too little skin to judge: keep them all
     # Both filters are smooth on the scale of lambda_s, so they run on a grid of block means
     # whose pixel is at most lambda_s / 6 (4 samples per Gaussian sigma of the S-filter).
@@ -256,9 +255,28 @@ def _confirmed_against_surrounding_skin(levelled, valid, basins, cores, candidat
     z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
     skin_share = block_mean(skin.astype(float), factor)
     fine = areal_gaussian_filter(z, spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), coarse_valid)
-    below = areal_gaussian_filter(fine, spacing, REFERENCE_CUTOFF_UM, coarse_valid & (skin_share > 0.5)) - fine
-    below = _expanded(below, levelled.shape, factor)
+    below = _expanded(skin_level(fine, spacing, coarse_valid & (skin_share > 0.5)) - fine, levelled.shape, factor)
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
+
+
+def skin_around(valid, wrinkles, spacing, margin_um=REFERENCE_MARGIN_UM):
+    """The skin around wrinkles: the ``valid`` points outside the ``wrinkles`` (a mask of
+    their whole extent) widened by ``margin_um``; None when that is less than 5% of the valid
+    points (too little to set a skin level from). Used by the segmentation's confirmation and
+    by the wrinkle measures (:mod:`skintopo.wrinkles`)."""
+    margin_px = max(1, int(round(margin_um / min(np.broadcast_to(spacing, 2)))))
+    skin = valid & ~scipy.ndimage.binary_dilation(wrinkles, iterations=margin_px)
+    return skin if skin.sum() >= 0.05 * valid.sum() else None
+
+
+def skin_level(surface, spacing, skin, cutoff_um=REFERENCE_CUTOFF_UM):
+    """The local skin level under the wrinkles: the ISO 16610-61 Gaussian regression of
+    ``surface`` at ``cutoff_um`` (2.5 mm) over the ``skin`` points alone
+    (:func:`skintopo.filters.coarse_areal_gaussian_filter`: a wide filter on block means with
+    at least 8 samples per sigma), which carries the skin's level across the wrinkles without
+    being pulled down by them. Used by the segmentation's confirmation (on the short-pass
+    surface) and by the wrinkle measures (on the skin's plateaus)."""
+    return coarse_areal_gaussian_filter(surface, spacing, cutoff_um, skin)
 
 
 def segmentation_from_labels(labels, spacing) -> WrinkleSegmentation:

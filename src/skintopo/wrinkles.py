@@ -42,7 +42,9 @@ length, length-weighted mean depth, axial mean orientation and the wrinkle area 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import copy
+from dataclasses import asdict, dataclass, fields
+from functools import cached_property
 
 import numpy as np
 import scipy.ndimage
@@ -53,31 +55,14 @@ from skimage.morphology import skeletonize
 
 from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTOFF_UM, DEFAULT_DEPTH_WINDOW_UM, DEFAULT_FURROW_CLOSING_UM
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, coarse_areal_gaussian_filter, line_segment_closing, polynomial_form
+from skintopo.filters import areal_gaussian_filter, line_segment_closing, polynomial_form
 from skintopo.heightmap import HeightMap
-from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation
+from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation, skin_around, skin_level
 
 DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
 PROFILE_SMOOTHING_UM = 250.0  # the floor depth is averaged over this to find the ends at half depth
-
-
-@dataclass(frozen=True)
-class Wrinkle:
-    """Measures of one wrinkle (units in the names; definitions in the module notes)."""
-
-    id: int
-    centroid_x_mm: float
-    centroid_y_mm: float
-    length_mm: float
-    orientation_deg: float
-    mean_depth_um: float
-    max_depth_um: float
-    mean_width_mm: float
-    cross_section_mm2: float
-    volume_mm3: float
-    severity: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -343,125 +328,356 @@ def axial_mean_deg(angles_deg, weights=None):
     return float(np.degrees(0.5 * np.arctan2((weights * np.sin(angles)).sum(), (weights * np.cos(angles)).sum())) % 180.0)
 
 
-def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, *, short_cutoff_um=DEFAULT_DEPTH_SHORT_CUTOFF_UM,
-                     reference_cutoff_um=DEFAULT_REFERENCE_CUTOFF_UM, margin_um=DEFAULT_MARGIN_UM, depth_fraction=0.5,
-                     furrow_closing_um=DEFAULT_FURROW_CLOSING_UM, along_closing_um=DEFAULT_ALONG_CLOSING_UM,
-                     depth_window_um=DEFAULT_DEPTH_WINDOW_UM) -> WrinkleMeasures:
-    """Per-wrinkle measures and field totals (see the module notes)."""
-    if segmentation.labels.shape != height.shape:
-        raise SkinTopoError(f"segmentation shape {segmentation.labels.shape} differs from the height map {height.shape}")
-    for name, value in (("furrow closing", furrow_closing_um), ("along closing", along_closing_um), ("margin", margin_um),
-                        ("depth window", depth_window_um)):
-        if not value > 0:
-            raise SkinTopoError(f"the {name} length must be positive, got {value} um")
-    if not short_cutoff_um >= 0:
-        raise SkinTopoError(f"the depth's S-filter cut-off must be 0 (none) or positive, got {short_cutoff_um} um")
-    dy, dx = height.spacing
-    if segmentation.count == 0:
-        return WrinkleMeasures([], _totals([], height, 0.0), np.zeros(height.shape, np.int32), np.zeros(height.shape, bool))
+@dataclass(frozen=True)
+class WrinkleSettings:
+    """Settings of the wrinkle measures (micrometres; see the module notes):
 
-    margin_px = max(1, int(round(margin_um / min(height.spacing))))
-    extent_any = np.asarray(segmentation.extent, bool)
-    around = height.mask & ~scipy.ndimage.binary_dilation(extent_any, iterations=margin_px)
-    if around.sum() < 0.05 * height.mask.sum():
+    short_cutoff_um
+        S-filter of the height before the depth is read (default 0: none).
+    reference_cutoff_um, margin_um
+        Gaussian regression cut-off of the local skin level (2.5 mm), and the margin around
+        the wrinkles' extents left out of it (0.15 mm).
+    depth_fraction
+        The level, as a fraction of the floor depth, of the ends and of the width (0.5).
+    furrow_closing_um, along_closing_um, depth_window_um
+        The closing segments that fill the furrows around a wrinkle (0.2 mm) and bridge those
+        crossing it (1 mm), and the stretch of centre line whose mean depth is the max depth (1 mm).
+    """
+
+    short_cutoff_um: float = DEFAULT_DEPTH_SHORT_CUTOFF_UM
+    reference_cutoff_um: float = DEFAULT_REFERENCE_CUTOFF_UM
+    margin_um: float = DEFAULT_MARGIN_UM
+    depth_fraction: float = 0.5
+    furrow_closing_um: float = DEFAULT_FURROW_CLOSING_UM
+    along_closing_um: float = DEFAULT_ALONG_CLOSING_UM
+    depth_window_um: float = DEFAULT_DEPTH_WINDOW_UM
+
+    def __post_init__(self):
+        for name, value in (("furrow closing", self.furrow_closing_um), ("along closing", self.along_closing_um),
+                            ("margin", self.margin_um), ("depth window", self.depth_window_um)):
+            if not value > 0:
+                raise SkinTopoError(f"the {name} length must be positive, got {value} um")
+        if not self.short_cutoff_um >= 0:
+            raise SkinTopoError(f"the depth's S-filter cut-off must be 0 (none) or positive, got {self.short_cutoff_um} um")
+
+
+@dataclass(frozen=True, eq=False)
+class WrinkleField:
+    """A height map prepared for wrinkle measures (see the module notes): the height with the
+    skin's quadratic form removed (``z``, missing points at the reference level), the skin
+    without furrows (``plateau``), the local skin level (``reference``), the skin around the
+    wrinkles, the segmentation's labels, the wrinkles' extents (their walls) and the settings."""
+
+    height: HeightMap
+    z: np.ndarray
+    plateau: np.ndarray
+    reference: np.ndarray
+    around: np.ndarray
+    labels: np.ndarray
+    extent: np.ndarray
+    extent_labels: np.ndarray
+    settings: WrinkleSettings
+
+    @property
+    def margin_px(self):
+        return max(1, int(round(self.settings.margin_um / min(self.height.spacing))))
+
+
+def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings=WrinkleSettings()) -> WrinkleField:
+    """The :class:`WrinkleField` of a height map and its segmentation."""
+    if segmentation.labels.shape != height.shape:
+        raise ValueError(f"segmentation shape {segmentation.labels.shape} differs from the height map {height.shape}")
+    extent = np.asarray(segmentation.extent, bool)
+    around = skin_around(height.mask, extent, height.spacing, settings.margin_um)
+    if around is None:
         raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
     # The least-squares quadratic form of the skin around the wrinkles is removed first: the
     # reference's Gaussian regression passes planes but lifts a curved forehead's level by
     # sigma^2 / (2 R) (1.4 um at 2.5 mm and R = 80 mm), which summed over a wrinkle's walls
     # is 10-15% of a shallow one's volume.
     z = height.z - polynomial_form(height.z, height.spacing, 2, around)
-    if short_cutoff_um:  # only when asked: it fills the floor of every wrinkle narrower than about 4 x the cut-off
-        z = areal_gaussian_filter(z, height.spacing, short_cutoff_um, height.mask)
+    if settings.short_cutoff_um:  # only when asked: it fills the floor of every wrinkle narrower than about 4 x the cut-off
+        z = areal_gaussian_filter(z, height.spacing, settings.short_cutoff_um, height.mask)
     height = HeightMap(z, height.spacing, height.mask)
-    plateau = plateau_surface(height, furrow_closing_um)
-    reference = coarse_areal_gaussian_filter(plateau, height.spacing, reference_cutoff_um, around)
+    plateau = plateau_surface(height, settings.furrow_closing_um)
+    reference = skin_level(plateau, height.spacing, around, settings.reference_cutoff_um)
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
+    return WrinkleField(height, z, plateau, reference, around, segmentation.labels, extent, label(extent), settings)
 
-    extent_labels = label(extent_any)
-    order = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
-    wrinkles, ids, lines, traces = [], np.zeros(height.shape, np.int32), np.zeros(height.shape, bool), []
-    half_area_total = 0.0
-    step = 0.5 * min(dy, dx)
-    for region in order:
-        whole_full = extent_labels == np.bincount(extent_labels[segmentation.labels == region.label]).argmax()
-        core_full = segmentation.labels == region.label
-        core_width = np.count_nonzero(core_full) * dx * dy / max(region.axis_major_length * min(dy, dx), dx)
-        extent_width = np.count_nonzero(whole_full) * dx * dy / max(region.axis_major_length * min(dy, dx), dx)
-        half_span = 0.75 * extent_width + margin_um + 2 * max(dy, dx)
-        extension = core_width + along_closing_um
-        pad = int((half_span + extension) / min(dy, dx)) + 3
-        window = _bounding_box(whole_full, pad)
-        core = core_full[window]
-        near = scipy.ndimage.binary_dilation(whole_full[window], iterations=margin_px)
-        frame_options = dict(smoothing_um=along_closing_um, extension_um=extension, half_span_um=half_span, step_um=step)
-        maps = (scipy.ndimage.spline_filter(z[window], order=3, mode="nearest"), reference[window], plateau[window],
-                around[window], (extent_any & ~whole_full)[window], near & height.mask[window], along_closing_um)
-        first_frame = wrinkle_frame(chained_path(centre_lines(skeletonize(core), height.spacing), height.spacing),
-                                    height.spacing, **frame_options)
-        depth, inside = depth_in_frame(first_frame, *maps)
-        profile = floor_profile(first_frame, depth, inside, PROFILE_SMOOTHING_UM)
+
+@dataclass(frozen=True)
+class MeasuredWrinkle:
+    """Measures of one wrinkle (units in the names; definitions in the module notes)."""
+
+    id: int
+    centroid_x_mm: float
+    centroid_y_mm: float
+    length_mm: float
+    orientation_deg: float
+    mean_depth_um: float
+    max_depth_um: float
+    mean_width_mm: float
+    cross_section_mm2: float
+    volume_mm3: float
+    severity: float
+
+
+WRINKLE_COLUMNS = tuple(f.name for f in fields(MeasuredWrinkle))
+
+
+class WrinkleProperties:
+    """The measures of one wrinkle, each computed when first read and then cached (the model
+    is scikit-image's ``RegionProperties``); the definitions are in the module notes and
+    docs/wrinkle-measures.md. ``label``: the wrinkle's label in the segmentation; ``id``: its
+    number among the measured wrinkles (:func:`wrinkle_properties`).
+
+    The frame and the depth in it are computed once for all measures; a table of some
+    measures (:func:`wrinkle_table`) computes only what those need."""
+
+    def __init__(self, region, field: WrinkleField, id=None):
+        self.label = region.label
+        self.id = id
+        self._region = region
+        self._field = field
+
+    def numbered(self, id):
+        """This wrinkle as number ``id`` (what was computed is shared)."""
+        numbered = copy.copy(self)
+        numbered.id = id
+        return numbered
+
+    @cached_property
+    def _box(self):
+        """The wrinkle's box (its walls and the frame's reach), its whole extent and the frame
+        settings."""
+        field, (dy, dx) = self._field, self._field.height.spacing
+        core = field.labels == self.label
+        whole = field.extent_labels == np.bincount(field.extent_labels[core]).argmax()
+        axis = max(self._region.axis_major_length * min(dy, dx), dx)
+        core_width = np.count_nonzero(core) * dx * dy / axis
+        extent_width = np.count_nonzero(whole) * dx * dy / axis
+        half_span = 0.75 * extent_width + field.settings.margin_um + 2 * max(dy, dx)
+        extension = core_width + field.settings.along_closing_um
+        box = _bounding_box(whole, int((half_span + extension) / min(dy, dx)) + 3)
+        options = dict(smoothing_um=field.settings.along_closing_um, extension_um=extension, half_span_um=half_span, step_um=0.5 * min(dy, dx))
+        return box, whole, options
+
+    @property
+    def core(self):
+        """The wrinkle's half-depth region (the segmentation's) in its box: (box, mask)."""
+        box = self._box[0]
+        return box, self._field.labels[box] == self.label
+
+    @cached_property
+    def _maps(self):
+        """What :func:`depth_in_frame` reads, cut to the box (the height as spline coefficients)."""
+        field = self._field
+        box, whole, _ = self._box
+        near = scipy.ndimage.binary_dilation(whole[box], iterations=field.margin_px)
+        return (scipy.ndimage.spline_filter(field.z[box], order=3, mode="nearest"), field.reference[box], field.plateau[box],
+                field.around[box], (field.extent & ~whole)[box], near & field.height.mask[box], field.settings.along_closing_um)
+
+    def _depth_along(self, frame):
+        """The depth in ``frame``, where it is the wrinkle's, and the floor profile."""
+        depth, inside = depth_in_frame(frame, *self._maps)
+        return depth, inside, floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM)
+
+    @cached_property
+    def _measured(self):
+        """The frame on the wrinkle's centre line, the depth in it, where it is the wrinkle's,
+        and the floor profile; None when the wrinkle has no centre line at half depth."""
+        _, _, options = self._box
+        spacing = self._field.height.spacing
+        first = wrinkle_frame(chained_path(centre_lines(skeletonize(self.core[1]), spacing), spacing), spacing, **options)
+        depth, _, profile = self._depth_along(first)
         if not np.isfinite(profile).any():
-            continue
-        frame = wrinkle_frame(midline(first_frame, depth, profile, depth_fraction, extension), height.spacing, **frame_options)
-        depth, inside = depth_in_frame(frame, *maps)
-        profile = floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM)
-        if not np.isfinite(profile).any():
-            continue
-        threshold = depth_fraction * float(profile.max())
+            return None
+        frame = wrinkle_frame(midline(first, depth, profile, self._field.settings.depth_fraction, options["extension_um"]), spacing, **options)
+        depth, inside, profile = self._depth_along(frame)
+        return (frame, depth, inside, profile) if np.isfinite(profile).any() else None
+
+    @property
+    def measurable(self):
+        return self._measured is not None
+
+    @property
+    def frame(self) -> WrinkleFrame:
+        return self._measured[0]
+
+    @cached_property
+    def _ends(self):
+        """Indices along s of the first and last samples at half depth or deeper, and that level."""
+        profile = self._measured[3]
+        threshold = self._field.settings.depth_fraction * float(profile.max())
         deep = np.flatnonzero(profile >= threshold)
-        first, last = deep[0], deep[-1]
-        on_line = slice(first, last + 1)
-        # Ends at half depth: interpolated between the last sample above and the first below.
+        return deep[0], deep[-1], threshold
+
+    @cached_property
+    def length_mm(self):
+        """Arc length between the ends at half depth, each interpolated between the last
+        sample above and the first below."""
+        frame, profile = self.frame, self._measured[3]
+        first, last, threshold = self._ends
         length = frame.s[last] - frame.s[first]
         for end, outward in ((first, -1), (last, 1)):
             beyond = end + outward
             if 0 <= beyond < frame.s.size and np.isfinite(profile[beyond]) and profile[end] > profile[beyond]:
-                length += step * (profile[end] - threshold) / (profile[end] - profile[beyond])
-        # Where the centre line crosses another wrinkle or leaves the field, its depth is
-        # interpolated along s from the samples on either side.
+                length += frame.step_um * (profile[end] - threshold) / (profile[end] - profile[beyond])
+        return float(length) / 1000
+
+    @cached_property
+    def _line(self):
+        """The centre line between the ends (a slice of s), and the floor profile and the floor
+        depth on it: where the line crosses another wrinkle or leaves the field, both are
+        interpolated along s from the samples on either side."""
+        frame, depth, inside, profile = self._measured
+        first, last, _ = self._ends
+        on_line = slice(first, last + 1)
         centre = int(np.abs(frame.t).argmin())
         on = np.flatnonzero(inside[centre, on_line])
         line_s = frame.s[on_line]
-        line_depth = np.interp(line_s, line_s[on], profile[on_line][on])
-        floor_depth = np.interp(line_s, line_s[on], depth[centre, on_line][on])
-        # Width at half depth of each cross-section, perpendicular to the centre line.
-        lower, upper = cross_section_edges(frame, depth[:, on_line], depth_fraction * line_depth)
-        widths = upper - lower
-        width = float(np.mean(widths))
-        # Volume: the signed depth over the whole wrinkle (its ends below half depth included)
-        # and its walls: within a width plus the margin of the centre line, other wrinkles
-        # and the field's outside left out.
-        walls = (np.abs(frame.t)[:, None] <= width + margin_um) & inside
-        volume = float((depth * frame.area_element)[walls].sum() * step * step * 1e-9)  # um^3 -> mm^3
-        # Max and mean depth from one profile: the floor's depth along the centre line averaged
-        # over ``depth_window_um`` (mirrored at the line's ends, so its mean is the line's);
-        # the maximum is the deepest such stretch, so mean <= max always.
-        stretch = scipy.ndimage.uniform_filter1d(floor_depth, min(_samples(depth_window_um, frame), floor_depth.size), mode="reflect")
-        max_depth, mean_depth = float(stretch.max()), float(stretch.mean())
-        orientation = axial_mean_deg(frame.direction_deg()[on_line])
-        row, column = (float(c) for c in region.centroid)
-        length = float(length)
-        new_id = len(wrinkles) + 1  # ids 1..n without gaps (a wrinkle without a measurable line is skipped)
-        wrinkles.append(Wrinkle(
-            id=new_id, centroid_x_mm=column * dx / 1000, centroid_y_mm=row * dy / 1000, length_mm=length / 1000,
-            orientation_deg=orientation, mean_depth_um=mean_depth, max_depth_um=max_depth, mean_width_mm=width / 1000,
-            cross_section_mm2=volume / (length / 1000), volume_mm3=volume, severity=mean_depth * (length / 1000) / 100,
-        ))
-        ids[window][core] = new_id
-        centre_rows = np.clip(np.rint(frame.rows[centre, on_line]).astype(int), 0, core.shape[0] - 1)
-        centre_columns = np.clip(np.rint(frame.columns[centre, on_line]).astype(int), 0, core.shape[1] - 1)
-        lines[window][centre_rows, centre_columns] = True
-        half_area_total += float(np.sum(widths) * step)
-        offset = np.array([window[0].start, window[1].start], float)
-        normal = np.stack([frame.tangent[on_line, 1], -frame.tangent[on_line, 0]], axis=-1) / np.asarray(height.spacing)
+        return (on_line, np.interp(line_s, line_s[on], profile[on_line][on]),
+                np.interp(line_s, line_s[on], depth[centre, on_line][on]))
+
+    @cached_property
+    def _edges(self):
+        """Offsets (um) of the two half-depth edges of each cross-section, perpendicular to
+        the centre line."""
+        on_line, line_depth, _ = self._line
+        return cross_section_edges(self.frame, self._measured[1][:, on_line], self._field.settings.depth_fraction * line_depth)
+
+    @cached_property
+    def _mean_width_um(self):
+        lower, upper = self._edges
+        return float(np.mean(upper - lower))
+
+    @property
+    def mean_width_mm(self):
+        """Mean width at half the floor depth."""
+        return self._mean_width_um / 1000
+
+    @property
+    def half_depth_area_um2(self):
+        """Area between the half-depth edges."""
+        lower, upper = self._edges
+        return float(np.sum(upper - lower) * self.frame.step_um)
+
+    @cached_property
+    def volume_mm3(self):
+        """The signed depth over the whole wrinkle (its ends below half depth included) and
+        its walls (within a width plus the margin of the centre line; other wrinkles and the
+        field's outside left out), with the frame's area element."""
+        frame, depth, inside, _ = self._measured
+        walls = (np.abs(frame.t)[:, None] <= self._mean_width_um + self._field.settings.margin_um) & inside
+        step = frame.step_um
+        return float((depth * frame.area_element)[walls].sum() * step * step * 1e-9)  # um^3 -> mm^3
+
+    @cached_property
+    def window_mean_depth_um(self):
+        """The floor's depth along the centre line averaged over ``depth_window_um`` (mirrored
+        at the line's ends, so that its mean is the line's): max and mean depth come from this
+        one profile, so mean <= max always."""
+        floor_depth = self._line[2]
+        return scipy.ndimage.uniform_filter1d(floor_depth, min(_samples(self._field.settings.depth_window_um, self.frame), floor_depth.size),
+                                              mode="reflect")
+
+    @property
+    def max_depth_um(self):
+        return float(self.window_mean_depth_um.max())
+
+    @property
+    def mean_depth_um(self):
+        return float(self.window_mean_depth_um.mean())
+
+    @property
+    def orientation_deg(self):
+        return axial_mean_deg(self.frame.direction_deg()[self._line[0]])
+
+    @property
+    def centroid_x_mm(self):
+        return float(self._region.centroid[1]) * self._field.height.spacing[1] / 1000
+
+    @property
+    def centroid_y_mm(self):
+        return float(self._region.centroid[0]) * self._field.height.spacing[0] / 1000
+
+    @property
+    def cross_section_mm2(self):
+        return self.volume_mm3 / self.length_mm
+
+    @property
+    def severity(self):
+        return self.mean_depth_um * self.length_mm / 100
+
+    @cached_property
+    def trace(self) -> WrinkleTrace:
+        """Where the wrinkle was measured, in pixel coordinates of the whole map."""
+        frame, depth = self.frame, self._measured[1]
+        first, last, _ = self._ends
+        on_line, _, floor_depth = self._line
+        lower, upper = self._edges
+        box = self._box[0]
+        centre = int(np.abs(frame.t).argmin())
+        normal = np.stack([frame.tangent[on_line, 1], -frame.tangent[on_line, 0]], axis=-1) / np.asarray(frame.spacing)
         centre_px = np.stack([frame.rows[centre, on_line], frame.columns[centre, on_line]], axis=-1)
-        middle = (first + last) // 2
-        centre_px += offset
-        traces.append(WrinkleTrace(frame.s[on_line] - frame.s[first], floor_depth, stretch, centre_px, centre_px + lower[:, None] * normal,
-                                   centre_px + upper[:, None] * normal, frame.t, depth[:, middle]))
-    return WrinkleMeasures(wrinkles, _totals(wrinkles, height, half_area_total), ids, lines, tuple(traces))
+        centre_px += np.array([box[0].start, box[1].start], float)
+        return WrinkleTrace(frame.s[on_line] - frame.s[first], floor_depth, self.window_mean_depth_um, centre_px,
+                            centre_px + lower[:, None] * normal, centre_px + upper[:, None] * normal, frame.t, depth[:, (first + last) // 2])
+
+    def line_pixels(self):
+        """The pixels (rows, columns of the whole map) of the centre line between the ends."""
+        box, core = self.core
+        centre = int(np.abs(self.frame.t).argmin())
+        on_line = self._line[0]
+        rows = np.clip(np.rint(self.frame.rows[centre, on_line]).astype(int), 0, core.shape[0] - 1)
+        columns = np.clip(np.rint(self.frame.columns[centre, on_line]).astype(int), 0, core.shape[1] - 1)
+        return rows + box[0].start, columns + box[1].start
+
+    def row(self) -> MeasuredWrinkle:
+        return MeasuredWrinkle(**{name: getattr(self, name) for name in WRINKLE_COLUMNS})
+
+
+def wrinkle_properties(height: HeightMap, segmentation: WrinkleSegmentation, **settings) -> list:
+    """The :class:`WrinkleProperties` of every measurable wrinkle (one with a centre line at
+    half depth), numbered 1..n by their centroids, top to bottom then left to right
+    (``settings``: those of :class:`WrinkleSettings`)."""
+    settings = WrinkleSettings(**settings)
+    if segmentation.count == 0 and segmentation.labels.shape == height.shape:
+        return []
+    field = wrinkle_field(height, segmentation, settings)
+    regions = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
+    measurable = [w for w in (WrinkleProperties(region, field) for region in regions) if w.measurable]
+    return [w.numbered(number) for number, w in enumerate(measurable, 1)]
+
+
+def wrinkle_table(height: HeightMap, segmentation: WrinkleSegmentation, properties=WRINKLE_COLUMNS, **settings) -> dict:
+    """Chosen measures of every wrinkle as columns, ``{name: array}`` (the model is
+    scikit-image's ``regionprops_table``); only what they need is computed. ``properties``:
+    attributes of :class:`WrinkleProperties` (e.g. ``"label"``, ``"max_depth_um"``);
+    ``settings``: those of :class:`WrinkleSettings`."""
+    unknown = [name for name in properties if name not in ("id", "label") and not hasattr(WrinkleProperties, name)]
+    if unknown:
+        raise ValueError(f"unknown wrinkle properties {unknown}; the measures are {', '.join(WRINKLE_COLUMNS)}")
+    wrinkles = wrinkle_properties(height, segmentation, **settings)
+    return {name: np.array([getattr(w, name) for w in wrinkles]) for name in properties}
+
+
+def measure_wrinkles(height: HeightMap, segmentation: WrinkleSegmentation, **settings) -> WrinkleMeasures:
+    """Per-wrinkle measures and field totals (see the module notes): every measure of
+    :func:`wrinkle_properties` as a :class:`MeasuredWrinkle`, the id image, the centre lines
+    and the traces. ``height`` in micrometres; ``segmentation``: the wrinkles' half-depth
+    regions (labels) and extents; ``settings``: those of :class:`WrinkleSettings`."""
+    wrinkles = wrinkle_properties(height, segmentation, **settings)
+    ids, lines = np.zeros(height.shape, np.int32), np.zeros(height.shape, bool)
+    for wrinkle in wrinkles:
+        box, core = wrinkle.core
+        ids[box][core] = wrinkle.id
+        lines[wrinkle.line_pixels()] = True
+    half_area = sum(w.half_depth_area_um2 for w in wrinkles)
+    rows = [w.row() for w in wrinkles]
+    return WrinkleMeasures(rows, _totals(rows, height, half_area), ids, lines, tuple(w.trace for w in wrinkles))
 
 
 def _totals(wrinkles, height, half_area_um2):
