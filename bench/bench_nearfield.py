@@ -72,11 +72,11 @@ def distant_reconstruction(images, lights, spacing):
 
 
 def mitsuba_check(size, spp=16):
-    """The same comparison on Mitsuba 3 renders (tests/mitsuba_render.py): the device with
+    """The same comparison on Mitsuba 3 renders (tests/helpers/mitsuba_render.py): the device with
     isotropic LEDs (Mitsuba's point emitters, mu = 0), perspective sensor, and the ideal
     orthographic / distant-light render; direct light, smooth mesh normals. Ours alongside."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    import mitsuba_render
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests.helpers
+    from tests.helpers import mitsuba_render
 
     device, surface = device_scene(size)
     device = replace(device, leds=tuple(replace(led, mu=0.0) for led in device.leds))

@@ -1,7 +1,7 @@
 """Benchmark: the physically based height on renders of a second, independent renderer, with
 least squares and with the robust solver inside its iteration, side by side in one run.
 
-Mitsuba 3 (``scalar_rgb`` path tracer, 8 bounces, tests/mitsuba_render.py) renders
+Mitsuba 3 (``scalar_rgb`` path tracer, 8 bounces, tests/helpers/mitsuba_render.py) renders
 forehead-moderate and forehead-high height fields (128 x 128 at 20 um, seed 4, 4 lights at 45
 degrees, 32 samples per pixel, albedo 0.60 / 0.41 / 0.33) in four cases: diffuse; diffuse +
 subsurface scattering (an exponential kernel exp(-r / d) per band, d = 120 / 70 / 40 um,
@@ -27,8 +27,8 @@ from skintopo.physics import physics_height
 from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.render import default_lights
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import mitsuba_render  # noqa: E402  (the second renderer lives with the tests)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests.helpers
+from tests.helpers import mitsuba_render  # noqa: E402  (the second renderer lives with the tests)
 
 BANDS = ("red", "green", "blue")
 ALBEDO = (0.6, 0.41, 0.33)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from test_compare import transformed_view  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests.helpers
+from tests.helpers.transforms import transformed_view  # noqa: E402
 
 from skintopo.registration import register_height_maps  # noqa: E402
 from skintopo.heightmap import HeightMap  # noqa: E402

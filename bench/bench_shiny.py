@@ -3,7 +3,7 @@
 the robust solver, and both with the cross-band specular separation, on a sphere and a
 wrinkled skin patch with a rough dielectric coat (Beckmann m = 0.1 / 0.2 / 0.4, surface
 reflection 1x and 10x the skin default; 0 = no coat), under 4, 12 and 50 lights, rendered by the
-simulator (tests/shiny.py); green band and the white (mean) band. Also the time of the
+simulator (tests/helpers/shiny.py); green band and the white (mean) band. Also the time of the
 robust solver against least squares on 12 images of 1000 x 1000.
 Results: bench/results/shiny.json.
 """
@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from shiny import light_set, render, skin_patch, sphere  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for tests.helpers
+from tests.helpers.shiny import light_set, render, skin_patch, sphere  # noqa: E402
 
 from skintopo.normals import angular_error_degrees, photometric_stereo, separate_specular  # noqa: E402
 

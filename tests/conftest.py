@@ -1,22 +1,14 @@
 import os
 from pathlib import Path
 
-import numpy as np
 import pytest
-from analytic import normals_from_slopes, paraboloid_with_wrinkles  # tests/ is on sys.path (pytest's rootdir conftest)
 
 from skintopo.acquisition import write_acquisition
 from skintopo.normals import render_lambertian
+from tests.helpers.analytic import four_lights, normals_from_slopes, paraboloid_with_wrinkles
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 DILIGENT_BALL = SHARED / "data" / "diligent-ball"
-
-
-def four_lights(slant_degrees=45.0, first_tilt_degrees=0.0):
-    """The paper's geometry: 4 lights at one slant, 90 degrees apart in tilt."""
-    slant = np.radians(slant_degrees)
-    tilt = np.radians(first_tilt_degrees + 90.0 * np.arange(4))
-    return np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.full(4, np.cos(slant))], axis=1)
 
 
 @pytest.fixture
@@ -28,10 +20,11 @@ def diligent_ball():
 
 @pytest.fixture
 def mitsuba_renderer():
-    """tests/mitsuba_render.py, the second renderer (Mitsuba 3); skips when mitsuba is absent."""
+    """tests/helpers/mitsuba_render.py, the second renderer (Mitsuba 3); skips when mitsuba is absent."""
     try:
         import mitsuba  # noqa: F401
-        import mitsuba_render
+
+        from tests.helpers import mitsuba_render
     except ImportError as error:
         pytest.skip(f"mitsuba (the second renderer) is not installed: {error}")
     return mitsuba_render

@@ -302,7 +302,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         skin, whose depth they differ on by micrometres where the light vectors change over
         millimetres; the alternation still runs to this band's own fixed point (measured at
         1000 px: about 2 s per band instead of 3; after form removal the error is that of a
-        start from scratch, 3.47 against 3.36 um at 256 px, tests/test_nearfield.py).
+        start from scratch, 3.47 against 3.36 um at 256 px, tests/nearfield/test_nearfield.py).
     tolerance_um, max_iterations
         Stop when the RMS depth change is below ``tolerance_um``.
 

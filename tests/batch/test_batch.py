@@ -1,0 +1,311 @@
+"""Study-scale batch runs: local processes and Dask, killed workers, signals, resumption and fingerprints."""
+
+import fcntl
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import skintopo.batch
+from skintopo.batch import run_study
+from skintopo.errors import SkinTopoError
+from skintopo.pipeline import MeasureOptions, SegmentationOptions
+from tests.helpers.study import write_study
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+CLI = [sys.executable, "-m", "skintopo.cli"]
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """2 subjects x 3 visits at 128 px, one acquisition corrupt."""
+    path = write_study(tmp_path_factory.mktemp("study"), ["S01", "S02"], size_px=128)
+    (path.parent / "S02_v3" / "red_01.png").write_bytes(b"\\x89PNG broken")
+    return path
+
+
+@pytest.fixture(scope="module")
+def twelve(tmp_path_factory):
+    """4 subjects x 3 visits at 96 px: the fault-injection study."""
+    return write_study(tmp_path_factory.mktemp("twelve"), ["A", "B", "C", "D"])
+
+
+def tables(out):
+    return {name: pd.read_csv(out / name) for name in ("results.csv", "changes.csv", "failures.csv")}
+
+
+def descendants(pid):
+    """Every process below ``pid`` (from /proc)."""
+    found, queue = [], [pid]
+    while queue:
+        parent = queue.pop()
+        for task in Path(f"/proc/{parent}/task").glob("*"):
+            try:
+                children = [int(c) for c in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            found += children
+            queue += children
+    return found
+
+
+def assert_gone(pids, within=5.0):
+    deadline = time.time() + within
+    alive = list(pids)
+    while alive and time.time() < deadline:
+        alive = [p for p in alive if Path(f"/proc/{p}").exists() and "Z" not in _state(p)]
+        time.sleep(0.1)
+    assert not alive, f"orphan processes left: {alive}"
+
+
+def _state(pid):
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except OSError:
+        return "Z"
+
+
+def finished_results(out, pattern="items/*/*/*/batch.json"):
+    """Stamps of published results; a stamp inside a staging folder (``.NAME.partial``) is not
+    one yet (the item is written whole in staging, stamp included, then renamed)."""
+    return [p for p in out.glob(pattern) if not any(part.startswith(".") for part in p.relative_to(out).parts)]
+
+
+def assert_items_complete(out):
+    """Every visible item folder is complete (stamped, with its files); staging folders aside."""
+    for kind, needed in (("items", "parameters.json"), ("changes", "changes.json")):
+        for folder in out.glob(f"{kind}/*/*/*"):
+            if folder.name.startswith("."):
+                continue
+            assert (folder / "batch.json").is_file() and (folder / needed).is_file(), folder
+
+
+@pytest.fixture(scope="module")
+def local_run(study, tmp_path_factory):
+    out = tmp_path_factory.mktemp("local") / "out"
+    run = subprocess.run([*CLI, "batch", str(study), "-o", str(out), "--workers", "2"], capture_output=True, text=True, timeout=600)
+    return out, run
+
+
+@pytest.mark.slow
+def test_local_processes(study, local_run):
+    out, run = local_run
+    assert run.returncode == 1, run.stderr  # one item failed: the exit status says so
+    failed_lines = [line for line in run.stderr.splitlines() if line.startswith("failed:")]
+    assert len(failed_lines) == 1 and failed_lines[0].startswith("failed: S02 V3 forehead (measure):") and "red_01.png" in failed_lines[0]
+    assert "computed 8, skipped (already done) 0, failed 1" in run.stdout  # 5 of 6 measures + 3 compares
+    t = tables(out)
+    assert len(t["results.csv"]) == 5 and set(t["results.csv"].subject) == {"S01", "S02"}
+    failures = t["failures.csv"]
+    assert len(failures) == 1 and failures.iloc[0].visit == "V3" and "red_01.png" in failures.iloc[0].error
+    assert set(t["changes.csv"].visit) == {"V2", "V3"} and len(t["changes.csv"][t["changes.csv"].subject == "S02"].visit.unique()) == 1
+    assert (out / "results.parquet").stat().st_size > 0 and (out / "summary.html").stat().st_size > 10_000
+    depth = t["changes.csv"]
+    s01 = depth[(depth.subject == "S01") & (depth.parameter == "wrinkles.mean_depth_um")]
+    assert (s01.change_percent < 0).all()  # the wrinkles were made shallower at every visit
+    # privacy: no absolute path of the study (or of anything else under it) in any output
+    root = str(study.parent)
+    for file in out.rglob("*"):
+        if file.is_file():
+            assert root.encode() not in file.read_bytes(), file
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["options"]["height"]["method"] == "auto" and summary["skintopo_version"] == skintopo.batch.__version__
+
+
+@pytest.mark.slow
+def test_dask_local_cluster_gives_identical_tables(study, local_run, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        counts, _, failures = run_study(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    assert counts == {"computed": 8, "skipped": 0, "failed": 1} and len(failures) == 1
+    for name, table in tables(tmp_path / "dask").items():
+        pd.testing.assert_frame_equal(table, tables(local_run[0])[name])
+
+
+@pytest.mark.slow
+def test_dask_worker_killed_mid_study_loses_and_duplicates_nothing(twelve, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    reference = tmp_path / "reference"
+    run_study(twelve, reference, workers=2)
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        outcome = {}
+        thread = threading.Thread(target=lambda: outcome.update(result=run_study(twelve, out, scheduler=cluster.scheduler_address)))
+        thread.start()
+        deadline = time.time() + 120
+        while time.time() < deadline and not finished_results(out):
+            time.sleep(0.05)
+        with distributed.Client(cluster) as client:
+            victim = next(iter(client.run(os.getpid).values()))
+        os.kill(victim, signal.SIGKILL)  # in the middle of the study
+        thread.join(timeout=300)
+    counts, _, failures = outcome["result"]
+    assert failures == [] and counts["failed"] == 0 and counts["computed"] == 20  # 12 measures + 8 compares, each once
+    assert_items_complete(out)
+    assert (out / "results.csv").read_bytes() == (reference / "results.csv").read_bytes()
+    assert (out / "changes.csv").read_bytes() == (reference / "changes.csv").read_bytes()
+    assert not list(out.glob("**/.*.partial"))
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_then_resume_gives_identical_results(twelve, tmp_path):
+    reference = tmp_path / "reference"
+    assert subprocess.run([*CLI, "batch", str(twelve), "-o", str(reference), "-q"], timeout=600).returncode == 0
+    out = tmp_path / "killed"
+    rng = np.random.default_rng(20261201)
+    for _ in range(10):
+        process = subprocess.Popen([*CLI, "batch", str(twelve), "-o", str(out), "-q"], stderr=subprocess.DEVNULL)
+        time.sleep(rng.uniform(0.5, 5.0))
+        children = descendants(process.pid)
+        process.kill()  # SIGKILL: nothing in skintopo runs after it
+        process.wait(timeout=30)
+        assert_gone(children)
+        assert_items_complete(out)
+    assert subprocess.run([*CLI, "batch", str(twelve), "-o", str(out), "-q"], timeout=600).returncode == 0
+    for name in ("results.csv", "changes.csv", "results_long.csv", "statistics.csv"):
+        assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+    assert not list(out.glob("**/.*.partial"))
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_workers_at_once_and_a_rerun_finishes(twelve, tmp_path):
+    out = tmp_path / "out"
+    process = subprocess.Popen([*CLI, "batch", str(twelve), "-o", str(out), "-q"], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not finished_results(out):
+        time.sleep(0.05)
+    children = descendants(process.pid)
+    assert children
+    sent = time.time()
+    process.send_signal(signal.SIGTERM)
+    stderr = process.communicate(timeout=30)[1]
+    assert time.time() - sent < 3.0  # no waiting for running items
+    assert process.returncode == 128 + signal.SIGTERM and "interrupted" in stderr and "run the same command again" in stderr
+    assert_gone(children)
+    assert_items_complete(out)
+    finished = len(finished_results(out))
+    assert 1 <= finished < 12
+    counts, _, _ = run_study(twelve, out, workers=2)
+    assert counts["skipped"] == finished and counts["computed"] == 20 - finished
+
+
+@pytest.mark.slow
+def test_interrupted_batch_resumes_without_recomputing(study, local_run, tmp_path):
+    out = tmp_path / "interrupted"
+    process = subprocess.Popen([*CLI, "batch", str(study), "-o", str(out), "--workers", "1", "-q"], start_new_session=True,
+                               stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(finished_results(out)) < 2:
+        time.sleep(0.1)
+    os.killpg(process.pid, signal.SIGINT)  # Ctrl-C, to the whole process group as a terminal would
+    process.wait(timeout=60)
+    # every finished result, measures (items/) and comparisons (changes/, repeats/): on a loaded
+    # machine the run may get further than the first two measures before the signal lands
+    finished = len(finished_results(out, "*/*/*/*/batch.json"))
+    assert finished >= 2
+    assert not list(out.glob("items/**/.*.partial"))  # nothing half-written
+    counts, _, _ = run_study(study, out, workers=2)
+    assert counts["skipped"] == finished and counts["computed"] + counts["skipped"] == 8
+    for name, table in tables(out).items():
+        pd.testing.assert_frame_equal(table, tables(local_run[0])[name])
+
+
+@pytest.mark.slow
+def test_fingerprint_recomputes_exactly_the_affected_items(tmp_path, monkeypatch):
+    study_path = write_study(tmp_path / "study", ["S"], size_px=96)
+    out = tmp_path / "out"
+
+    def run(**options):
+        counts, _, failures = run_study(study_path, out, workers=1, **options)
+        assert failures == []
+        return counts["computed"], counts["skipped"]
+
+    assert run() == (5, 0)  # 3 measures + 2 compares
+    assert run() == (0, 5)
+    monkeypatch.setattr(skintopo.batch, "__version__", "99.0")  # an upgrade
+    assert run() == (5, 0)
+    assert run() == (0, 5)
+    manifest = study_path.parent / "S_v3" / "acquisition.json"  # one byte changed, same size: that visit and its compare
+    text = manifest.read_text()
+    manifest.write_text(text.replace("synthetic skin", "synthetiC skin"))
+    assert manifest.stat().st_size == len(text.encode())
+    assert run() == (2, 3)
+    (study_path.parent / "S_v2" / "red_01.png").write_bytes(b"broken")  # a visit that now fails: its stale compare goes too
+    counts, _, failures = run_study(study_path, out, workers=1)
+    assert counts == {"computed": 0, "skipped": 3, "failed": 1} and [f["visit"] for f in failures] == ["V2"]
+    assert not (out / "changes" / "S" / "forehead" / "V2").exists() and not (out / "items" / "S" / "forehead" / "V2").exists()
+    assert set(pd.read_csv(out / "changes.csv").visit) == {"V3"}
+    shutil.rmtree(study_path.parent / "S_v2")
+    shutil.copytree(study_path.parent / "S_v3", study_path.parent / "S_v2")
+    assert run() == (2, 3)  # V2 measured again and compared
+    assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0))) == (5, 0)  # an option
+    assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0)), force=True) == (5, 0)
+
+
+def test_unreachable_scheduler_is_a_clear_error_within_the_timeout(tmp_path):
+    pytest.importorskip("distributed")
+    study_path = tmp_path / "study.csv"
+    (tmp_path / "a").mkdir()
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    with socket.socket() as sock:  # a port nobody listens on
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    started = time.time()
+    with pytest.raises(SkinTopoError, match=f"cannot reach the Dask scheduler at {address} within 1 s"):
+        run_study(study_path, tmp_path / "out", scheduler=address, scheduler_timeout=1.0)
+    assert time.time() - started < 8 and not (tmp_path / "out").exists()
+
+
+def test_a_second_concurrent_run_on_the_same_folder_is_refused(tmp_path):
+    study_path = tmp_path / "study" / "study.csv"
+    (tmp_path / "study" / "a").mkdir(parents=True)
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / ".lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a running batch holds it
+        with pytest.raises(SkinTopoError, match="another skintopo batch is writing"):
+            run_study(study_path, out)
+
+
+@pytest.mark.slow
+def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(tmp_path):
+    study_path = write_study(tmp_path / "study", ["S1", "S2", "S3"], size_px=128, depth_factors=(1.0, 0.8), repeat_first=True)
+    out = tmp_path / "out"
+    counts, _, failures = run_study(study_path, out, workers=2)
+    assert failures == [] and counts["computed"] == 6 + 3 + 3 + 3  # visits + repeats measured, 3 compares, 3 repeat pairs
+    statistics = pd.read_csv(out / "statistics.csv")
+    depth = statistics[statistics.parameter == "wrinkles.mean_depth_um"].iloc[0]
+    assert depth.subjects == 3 and depth.repeat_pairs == 3 and depth.mean_change < 0 and np.isfinite(depth.detection_limit)
+    assert depth.ci95_low < depth.mean_change < depth.ci95_high
+    page = (out / "summary.html").read_text()
+    assert "mean wrinkle depth" in page and "µm" in page and "items/S1/forehead/V1/report.html" in page
+    assert "default-src 'none'" in page and "http://" not in page and "https://" not in page
+    if CHROMIUM is None:
+        pytest.skip("no chromium on this machine (Debian package 'chromium'): summary page not rendered")
+    for width in (1400, 390):
+        shot = tmp_path / f"summary-{width}.png"
+        run = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run", "--disable-background-networking",
+                              "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
+                              f"--screenshot={shot}", f"--window-size={width},2400", (out / "summary.html").as_uri()],
+                             capture_output=True, text=True, timeout=120)
+        assert shot.is_file(), run.stderr
+        import imagecodecs
+
+        image = imagecodecs.imread(shot)[..., :3]
+        # nothing cut off on the right: the last columns of the page are background only
+        assert (image[:, -6:] >= 250).all(), f"content reaches the right edge at {width} px"
+        if os.environ.get("SKINTOPO_KEEP_SCREENSHOTS"):
+            shutil.copy(shot, Path(os.environ["SKINTOPO_KEEP_SCREENSHOTS"]) / shot.name)

@@ -1,0 +1,182 @@
+"""``skintopo reconstruct``: end to end, and every bad acquisition refused with a clear message and nothing written."""
+
+import json
+
+import numpy as np
+import pytest
+
+from skintopo.cli import main
+from skintopo.formats import write_png
+from skintopo.heightmap import HeightMap
+from skintopo.normals import angular_error_degrees
+from tests.helpers.analytic import rms_error_after_offset
+
+
+def edit_manifest(folder, change):
+    path = folder / "acquisition.json"
+    manifest = json.loads(path.read_text())
+    change(manifest)
+    path.write_text(json.dumps(manifest))
+
+
+def run_reconstruct(folder, out, capsys, *extra):
+    code = main(["reconstruct", str(folder), "-o", str(out), "-q", *extra])
+    return code, capsys.readouterr().err
+
+
+def assert_refused(folder, tmp_path, capsys, *fragments):
+    out = tmp_path / "out"
+    code, err = run_reconstruct(folder, out, capsys)
+    assert code == 2
+    assert "Traceback" not in err
+    for fragment in fragments:
+        assert fragment in err, err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".out.*"))  # no staging folder left behind
+    return err
+
+
+def test_reconstruct_end_to_end(lambertian_acquisition, tmp_path, capsys):
+    folder, z, normals = lambertian_acquisition
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    out = tmp_path / "out"
+    assert main(["reconstruct", str(folder), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "red" in printed and "wrote" in printed
+    for band in ("red", "green", "blue"):
+        got = np.load(out / band / "normals.npy")
+        assert got.dtype == np.float32 and got.shape == normals.shape
+        error = angular_error_degrees(got, normals)
+        assert np.nanmean(error) < 0.1  # 16-bit quantisation only
+        height = HeightMap.load(out / band / "height.x3p")
+        assert height.spacing == (10.0, 10.0)
+        assert rms_error_after_offset(height.z, z) < 0.01 * np.ptp(z)
+        albedo = np.load(out / band / "albedo.npy")
+        assert albedo.shape == z.shape
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["options"]["integrator"] == "auto" and summary["acquisition"]["pixel_um"] == 10.0
+    assert str(folder.parent) not in (out / "summary.json").read_text()  # no input path recorded
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before  # inputs untouched
+
+
+def test_refuses_non_empty_output_unless_overwrite(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("x")
+    code, err = run_reconstruct(folder, out, capsys)
+    assert code == 2 and "not empty" in err and (out / "keep.txt").exists()
+    code, _ = run_reconstruct(folder, out, capsys, "--overwrite", "--band", "green")
+    assert code == 0 and not (out / "keep.txt").exists() and (out / "green" / "height.x3p").exists()
+    assert not (out / "red").exists()
+
+
+def test_refuses_output_over_the_input(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    code, err = run_reconstruct(folder, folder, capsys, "--overwrite")
+    assert code == 2 and "overlaps the input" in err
+    assert (folder / "acquisition.json").exists()
+
+
+def test_missing_file(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    (folder / "green_02.png").unlink()
+    assert_refused(folder, tmp_path, capsys, "green_02.png: image file not found")
+
+
+def test_mismatched_image_sizes(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    write_png(folder / "blue_01.png", np.zeros((20, 30), np.uint16))
+    assert_refused(folder, tmp_path, capsys, "blue_01.png: image size 30x20 differs")
+
+
+def test_bit_depth_mix(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    write_png(folder / "red_03.png", np.zeros((48, 64), np.uint8))
+    assert_refused(folder, tmp_path, capsys, "red_03.png: pixel type uint8 differs", "one bit depth")
+
+
+def test_fewer_than_three_lights(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    edit_manifest(folder, lambda m: m.update(images=[e for e in m["images"] if e["band"] != "red" or e["file"] < "red_02"]))
+    assert_refused(folder, tmp_path, capsys, "band red: only 2 light(s)")
+
+
+def test_coplanar_lights(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+
+    def flatten(manifest):  # put every red light in the x-z plane
+        for entry in manifest["images"]:
+            if entry["band"] == "red":
+                x, y, zc = entry["light"]
+                r = np.hypot(x, y)
+                entry["light"] = [r if x + y >= 0 else -r, 0.0, zc]
+
+    edit_manifest(folder, flatten)
+    assert_refused(folder, tmp_path, capsys, "band red: the light directions are coplanar")
+
+
+@pytest.mark.parametrize("light, message", [([0.5, 0.0, 0.5], "is not a unit vector (norm 0.7071)"), ([0, 0, 0], "is the zero vector")])
+def test_bad_light_vector(lambertian_acquisition, tmp_path, capsys, light, message):
+    folder, _, _ = lambertian_acquisition
+    edit_manifest(folder, lambda m: m["images"][5].update(light=light))
+    assert_refused(folder, tmp_path, capsys, "images[5] (green_01.png)", message)
+
+
+def test_malformed_manifest_reports_every_problem(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+
+    def break_it(manifest):
+        manifest["pixel_size_um"] = -2
+        manifest["images"][0]["band"] = "purple"
+        manifest["images"][1]["ligth"] = [0, 0, 1]
+        manifest["images"][2]["light"] = "up"
+
+    edit_manifest(folder, break_it)
+    err = assert_refused(
+        folder, tmp_path, capsys,
+        "4 problem(s)",
+        "'pixel_size_um' must be a positive number",
+        "images[0] (red_00.png): field 'band' must be one of",
+        "images[1] (red_01.png): unknown field 'ligth'",
+        "images[2] (red_02.png): field 'light' must be a list of 3 numbers",
+    )
+    assert err.count("  - ") == 4
+
+
+def test_manifest_that_is_not_json(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    (folder / "acquisition.json").write_text('{"format": "skintopo-acquisition", ')
+    assert_refused(folder, tmp_path, capsys, "acquisition.json", "not valid JSON")
+
+
+def test_mask_of_the_wrong_size(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    write_png(folder / "mask.png", np.full((10, 10), 255, np.uint8))
+    edit_manifest(folder, lambda m: m.update(mask="mask.png"))
+    assert_refused(folder, tmp_path, capsys, "mask.png: mask size 10x10 differs from the images (64x48)")
+
+
+def test_unreadable_image(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    (folder / "red_00.png").write_bytes(b"\x89PNG garbage")
+    assert_refused(folder, tmp_path, capsys, "red_00.png: not a readable PNG image")
+
+
+@pytest.mark.slow
+def test_every_effect_off_reconstructs_exactly(tmp_path, capsys):
+    out = tmp_path / "acq"
+    args = ["synth", "-o", str(out), "--preset", "forehead-moderate", "--size", "160", "--noise", "0", "-q"]
+    args += ["--no-interreflection", "--no-specular", "--no-translucency", "--no-shadows", "--no-albedo-variation"]
+    assert main(args) == 0
+    assert main(["reconstruct", str(out), "-o", str(tmp_path / "rec"), "--band", "red", "-q"]) == 0
+    truth = np.load(out / "ground_truth" / "normals.npy")
+    normals = np.load(tmp_path / "rec" / "red" / "normals.npy")
+    error = angular_error_degrees(normals, truth)
+    height = HeightMap.load(tmp_path / "rec" / "red" / "height.x3p")
+    true_height = HeightMap.load(out / "ground_truth" / "height.x3p")
+    wrinkle_depth = max(w["depth_um"] for w in json.loads((out / "ground_truth" / "surface.json").read_text())["surface"]["wrinkles"])
+    rms = rms_error_after_offset(height.z, true_height.z, height.mask)
+    print(f"effects off: mean angular error {np.nanmean(error):.4f} deg, height RMS {rms:.3f} um (deepest wrinkle {wrinkle_depth} um)")
+    assert np.nanmean(error) < 0.1
+    assert rms < 0.01 * wrinkle_depth

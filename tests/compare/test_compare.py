@@ -1,0 +1,74 @@
+"""Before/after comparison on simulated visits: a treated wrinkle detected, repeats near zero, detection limits."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from skintopo.compare import Comparison, compare_visits, detection_limits
+from skintopo.errors import SkinTopoError
+from skintopo.height import integrate_normals
+from skintopo.normals import photometric_stereo
+from skintopo.results import comparison_rows
+from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+
+
+def visit(spec, noise_seed):
+    surface = make_surface(spec, seed=5)
+    bands, _ = simulate_acquisition(surface, default_settings(), seed=noise_seed)
+    stereo = photometric_stereo(*bands["white"])
+    return integrate_normals(stereo.normals, spec.pixel_um, mask=stereo.valid)
+
+
+@pytest.mark.slow
+def test_treatment_of_one_wrinkle_is_detected_and_repeats_are_near_zero():
+    spec = preset_spec("forehead-moderate", size_px=256)
+    baseline = visit(spec, 1)
+    repeat = visit(dataclasses.replace(spec, shift_um=(30.0, -25.0)), 2)  # same skin, new noise, moved
+    wrinkles = list(spec.wrinkles)
+    wrinkles[1] = dataclasses.replace(wrinkles[1], depth_um=0.7 * wrinkles[1].depth_um)  # treated: 30% shallower
+    treated = visit(dataclasses.replace(spec, wrinkles=tuple(wrinkles), shift_um=(-20.0, 35.0)), 3)
+    second_repeat = visit(dataclasses.replace(spec, shift_um=(-35.0, 10.0)), 4)
+    repeat_comparisons = [compare_visits(baseline, r) for r in (repeat, second_repeat)]
+    limits = detection_limits(repeat_comparisons)
+    comparison = compare_visits(baseline, treated)
+    for label, c in (("repeat", repeat_comparisons[0]), ("treated", comparison)):
+        for wrinkle_id, record in c.wrinkles.items():
+            print(label, wrinkle_id, "->", record["follow_up_id"], {k: f"{v['change_percent']:+.1f}%" for k, v in record.items() if isinstance(v, dict)})
+    # repeats: every wrinkle found again, depth changes near zero
+    for record in repeat_comparisons[0].wrinkles.values():
+        assert record["follow_up_id"] is not None and abs(record["max_depth_um"]["change_percent"]) < 3
+    # treatment: the second wrinkle (baseline id 2, top to bottom) -30% +- 5% and detectable; the
+    # untouched ones not flagged (once, with a single repeat, one was: +2.7% against 0.19 um)
+    assert comparison.wrinkles[2]["max_depth_um"]["change_percent"] == pytest.approx(-30, abs=5)
+    rows = {row["parameter"]: row for row in comparison_rows(comparison, limits.limits)}
+    assert rows["wrinkle2.max_depth_um"]["detectable"] and rows["wrinkle2.mean_depth_um"]["detectable"]
+    for wrinkle_id in (1, 3):
+        assert not any(rows[f"wrinkle{wrinkle_id}.{name}"]["detectable"] for name in ("max_depth_um", "mean_depth_um", "length_mm"))
+    # 2 repeats x 3 wrinkles pooled: 6 degrees of freedom per wrinkle measure, 2 per texture parameter (warned)
+    assert limits.degrees_of_freedom["wrinkle1.max_depth_um"] == 6 and limits.degrees_of_freedom["Sa"] == 2 and limits.warnings
+    print("smallest detectable change of max depth (um):", {k: round(v, 2) for k, v in limits.limits.items() if k.endswith("max_depth_um")})
+
+
+def test_detection_limits_are_student_prediction_limits_of_repeat_differences():
+    """The formula against numbers worked by hand. Texture differences 1 and -2 (nu = 2):
+    s_r^2 = (1 + 4) / 4, limit = t_(0.975, 2) sqrt(2) s_r. Two wrinkles of 100 and 50 um max
+    depth, changed by +2%, -2% in one repeat and -2%, +2% in the other: relative differences
+    pooled (nu = 4), s_rel^2 = 4 x 0.02^2 / 8, limit = t_(0.975, 4) sqrt(2) s_rel x baseline."""
+    def record(before, after):
+        return {"baseline": before, "follow_up": after, "change": after - before, "change_percent": 100 * (after - before) / before}
+
+    def repeat(sa_change, depths):
+        wrinkles = {i + 1: {"follow_up_id": i + 1, "max_depth_um": record(b, a)} for i, (b, a) in enumerate(depths)}
+        return Comparison(None, None, {"Sa": record(10.0, 10.0 + sa_change)}, wrinkles, {}, None, None)
+
+    limits = detection_limits([repeat(1.0, [(100.0, 102.0), (50.0, 49.0)]), repeat(-2.0, [(100.0, 98.0), (50.0, 51.0)])],
+                              confidence=0.95)
+    assert limits.limits["Sa"] == pytest.approx(4.302653 * np.sqrt(2) * np.sqrt(5 / 4), rel=1e-6)
+    s_rel = np.sqrt(4 * 0.02**2 / 8)
+    assert limits.limits["wrinkle1.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 100, rel=1e-6)
+    assert limits.limits["wrinkle2.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 50, rel=1e-6)
+    assert limits.degrees_of_freedom == {"Sa": 2, "wrinkle1.max_depth_um": 4, "wrinkle2.max_depth_um": 4}
+    assert "2 repeat pair(s)" in limits.warnings[0]
+    with pytest.raises(SkinTopoError, match="at least one repeat"):
+        detection_limits([])

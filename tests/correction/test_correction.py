@@ -1,0 +1,63 @@
+"""The paper's spectral correction, exactly, and the feathered variant against its closed form."""
+
+import numpy as np
+import pytest
+from scipy.special import ndtr
+
+from skintopo.correction import correct_slopes, spectral_correction, substitution_weight
+from skintopo.errors import SkinTopoError
+
+
+def test_feathered_weight_follows_the_closed_form_of_a_blurred_straight_border():
+    """Mask = columns left of a straight border; outside it w = 2 Phi(-d / sigma), sigma = feather / 2."""
+    mask = np.zeros((60, 120), bool)
+    mask[:, :50] = True
+    weight = substitution_weight(mask, (10.0, 10.0), method="feathered", feather_um=150.0)
+    distance = np.arange(50, 120) - 49.5  # pixels from the border (pixel centres)
+    expected = np.clip(2 * ndtr(-distance / 7.5), 0, 1)
+    np.testing.assert_allclose(weight[30, 50:], expected, atol=2e-3)
+    assert (weight[:, :50] == 1).all()
+    np.testing.assert_array_equal(substitution_weight(mask, 10.0, method="paper"), mask.astype(float))
+
+
+def test_feathered_correction_keeps_red_far_from_the_wrinkle_and_the_minimum_inside():
+    rows, columns = 200, 96
+    y, x = np.mgrid[:rows, :columns] * 10.0
+    groove = 40.0 * np.exp(-(((y - 1000.0) / 60.0) ** 2))  # a straight groove along x, 40 um deep, mid-field
+    slope_y = -np.gradient(-groove, 10.0, axis=0)  # dz/dy with y up: rows go down
+    mask = groove > 20.0
+    red = (np.zeros_like(x), 0.6 * slope_y)  # red too shallow, green and blue too deep
+    green = blue = (np.zeros_like(x), 1.3 * slope_y)
+    corrected, z_red, z_a = correct_slopes(red, green, blue, mask, 10.0, method="feathered")
+    weight = substitution_weight(mask, 10.0, method="feathered")
+    far = weight == 0
+    assert far.sum() > 0.3 * far.size  # the feather (4 sigma) ends well inside the field
+    offset = np.median((corrected.z - z_red.z)[far])
+    np.testing.assert_allclose(corrected.z[far] - offset, z_red.z[far], atol=1e-6)
+    inside = mask
+    np.testing.assert_allclose(corrected.z[inside], np.minimum(z_a.z, z_red.z)[inside], atol=1e-6)
+    with pytest.raises(Exception, match="unknown correction method"):
+        correct_slopes(red, green, blue, mask, 10.0, method="blend")
+
+
+def test_correction_is_exactly_the_papers_algorithm_on_known_slopes():
+    rng = np.random.default_rng(0)
+    shape = (40, 50)
+    red, green, blue = ((rng.normal(size=shape) * 0.1, rng.normal(size=shape) * 0.1) for _ in range(3))
+    mask = np.zeros(shape, bool)
+    mask[15:25, 10:40] = True
+    corrected, z_red, z_a = correct_slopes(red, green, blue, mask, 10.0, integrator="dct-poisson")
+    t1 = (red[0] + (green[0] + blue[0]) / 2) / 2
+    t2 = (red[1] + (green[1] + blue[1]) / 2) / 2
+    from skintopo.height import dct_poisson
+
+    expected_red = dct_poisson(*red, 10.0)
+    expected_a = dct_poisson(np.where(mask, t1, red[0]), np.where(mask, t2, red[1]), 10.0)
+    expected_a -= np.median((expected_a - expected_red)[~mask])
+    np.testing.assert_allclose(z_red.z, expected_red)
+    np.testing.assert_allclose(corrected.z, np.where(mask, np.minimum(expected_a, expected_red), expected_red))
+
+
+def test_correction_needs_three_bands():
+    with pytest.raises(SkinTopoError, match=r"missing \['blue'\]"):
+        spectral_correction({"red": np.zeros((4, 4, 3)), "green": np.zeros((4, 4, 3))}, 1.0)

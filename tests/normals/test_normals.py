@@ -1,0 +1,228 @@
+"""Photometric stereo: least squares and robust solvers, shadows, saturation, highlights, residuals."""
+
+import numpy as np
+import pytest
+
+from skintopo.errors import SkinTopoError
+from skintopo.normals import angular_error_degrees, photometric_stereo, render_lambertian, separate_specular
+from tests.helpers.analytic import SURFACES, four_lights, normals_from_slopes, plane_and_bump
+
+
+@pytest.mark.parametrize("name", sorted(SURFACES))
+def test_noise_free_lambertian_normals_recovered_within_0_1_degree(name):
+    z, p, q = SURFACES[name]()
+    truth = normals_from_slopes(p, q)
+    lights = four_lights(slant_degrees=40.0, first_tilt_degrees=20.0)
+    albedo = 0.3 + 0.4 * np.random.default_rng(1).random(z.shape)
+    images = render_lambertian(truth, albedo, lights)  # attached shadows (n.s < 0) render as 0
+    result = photometric_stereo(images, lights)
+    error = angular_error_degrees(result.normals, truth)
+    print(f"{name}: mean {np.nanmean(error):.2e} deg, max {np.nanmax(error):.2e} deg")
+    # the default shadow rule, written out: I_i > 0.05 rho_0, rho_0 = the smaller |g| of the plain fit of all
+    # observations and of the fit without the brightest one
+    brightest = np.argmax(images, axis=0)
+    without = [np.linalg.norm(np.linalg.pinv(np.delete(lights, b, axis=0)) @ np.delete(images[:, r, c], b), axis=0)
+               for (r, c), b in np.ndenumerate(brightest)]
+    rho_0 = np.minimum(np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights), images), axis=-1),
+                       np.reshape(without, brightest.shape))
+    usable = (images > 0.05 * rho_0).sum(axis=0)
+    np.testing.assert_array_equal(result.lights_used, usable)
+    np.testing.assert_array_equal(result.valid, usable >= 3)  # steep slopes: some pixels keep only 2 lights
+    assert result.valid.mean() > 0.9
+    assert np.nanmax(error) < 0.1
+    np.testing.assert_allclose(result.albedo[result.valid], albedo[result.valid], rtol=1e-4)
+    assert np.nanmax(result.residual) < 1e-5
+
+
+def test_saturated_and_shadowed_observations_are_excluded_per_pixel():
+    z, p, q = plane_and_bump(shape=(40, 50))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)  # gentle: no attached shadows
+    lights = np.array([four_lights()[i] for i in range(4)] + [[0.0, 0.0, 1.0]])
+    images = render_lambertian(truth, 0.5, lights).astype(np.float32)
+    corrupted = images.copy()
+    corrupted[0, :10] = np.nan  # saturated observations (NaN) in the first 10 rows
+    corrupted[1, 10:20] = 0.001 * images[1, 10:20]  # a cast shadow on light 1
+    result = photometric_stereo(corrupted, lights)
+    error = angular_error_degrees(result.normals, truth)
+    assert np.nanmax(error) < 0.1
+    assert (result.lights_used[:10] == 4).all()
+    assert (result.lights_used[10:20] == 4).all()
+    assert (result.lights_used[20:] == 5).all()
+    # Without shadow exclusion, the shadowed rows are wrong.
+    naive = photometric_stereo(corrupted, lights, shadow_fraction=0.0)
+    assert np.nanmean(angular_error_degrees(naive.normals, truth)[10:20]) > 5
+
+
+def test_pixels_left_with_fewer_than_three_lights_are_invalid_not_guessed():
+    lights = four_lights()
+    normals = np.zeros((5, 6, 3))
+    normals[..., 2] = 1
+    images = render_lambertian(normals, 0.5, lights).astype(np.float32)
+    images[:2, 2, 3] = np.nan  # two of four saturated: 2 left
+    result = photometric_stereo(images, lights)
+    assert not result.valid[2, 3]
+    assert np.isnan(result.normals[2, 3]).all() and np.isnan(result.albedo[2, 3])
+    assert result.valid.sum() == 29
+
+
+def test_mask_limits_the_solve():
+    lights = four_lights()
+    normals = np.zeros((4, 4, 3))
+    normals[..., 2] = 1
+    mask = np.zeros((4, 4), bool)
+    mask[1:3, 1:3] = True
+    result = photometric_stereo(render_lambertian(normals, 0.5, lights), lights, mask=mask)
+    np.testing.assert_array_equal(result.valid, mask)
+
+
+@pytest.mark.parametrize(
+    "lights, message",
+    [
+        ([[0, 0, 1], [0.6, 0, 0.8]], "at least 3"),
+        ([[0, 0, 1], [0.6, 0, 0.8], [-0.6, 0, 0.8]], "coplanar"),
+        ([[0, 0, 1], [0.6, 0, 0.8], [0, 0.5, 0.5]], "not a unit vector"),
+        ([[0, 0, 1], [0.6, 0, 0.8], [0, 0, 0]], "zero vector"),
+    ],
+)
+def test_degenerate_light_sets_are_refused(lights, message):
+    images = np.ones((len(lights), 3, 3))
+    with pytest.raises(SkinTopoError, match=message):
+        photometric_stereo(images, lights)
+
+
+def test_robust_solver_removes_one_specular_outlier_per_pixel():
+    z, p, q = plane_and_bump(shape=(40, 50))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = np.array([four_lights()[i] for i in range(4)] + [[0.0, 0.0, 1.0]])
+    images = render_lambertian(truth, 0.5, lights).astype(np.float32)
+    images[2, 5:30] += 0.3  # a highlight in light 2
+    plain = photometric_stereo(images, lights)
+    robust = photometric_stereo(images, lights, solver="robust")
+    assert np.nanmean(angular_error_degrees(plain.normals, truth)[5:30]) > 5
+    assert np.nanmax(angular_error_degrees(robust.normals, truth)) < 0.1
+    assert not robust.used[2, 5:30].any() and robust.used[2, 30:].all()
+
+
+def test_specular_free_band_removes_white_highlights():
+    from skintopo.normals import specular_free_images
+
+    z, p, q = plane_and_bump(shape=(40, 50))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = four_lights()
+    highlight = np.zeros((4, 40, 50))
+    highlight[1, 10:20] = 0.2  # the same (white) specular in every band
+    bands = [render_lambertian(truth, albedo, lights) + highlight for albedo in (0.6, 0.41, 0.33)]
+    free = photometric_stereo(specular_free_images(*bands), lights)
+    assert np.nanmax(angular_error_degrees(free.normals, truth)) < 0.1
+    assert np.nanmean(angular_error_degrees(photometric_stereo(bands[2], lights).normals, truth)[10:20]) > 5
+
+
+def test_shadow_rule_is_not_fooled_by_a_highlight():
+    """A highlight several times the diffuse level must not push good dim observations under
+    the shadow threshold (the former rule was relative to the brightest observation)."""
+    z, p, q = plane_and_bump(shape=(30, 40))
+    truth = normals_from_slopes(0.3 * p, 0.3 * q)
+    slant = np.radians(np.repeat([20.0, 50.0, 75.0], 4))
+    tilt = np.radians(np.arange(12) * 30.0)
+    lights = np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
+    images = render_lambertian(truth, 0.4, lights).astype(np.float32)
+    images[5, :, :20] = 0.0  # a cast shadow under light 5 in the left half
+    matte = photometric_stereo(images, lights)
+    images[0] += 2.0  # a highlight 5x the diffuse level under light 0 at every pixel
+    result = photometric_stereo(images, lights)
+    # the rule, written out: rho_0 = min(|g| of all observations, |g| without the brightest, here light 0)
+    rho_0 = np.minimum(np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights), images), axis=-1),
+                       np.linalg.norm(np.einsum("jm,mrc->rcj", np.linalg.pinv(lights[1:]), images[1:]), axis=-1))
+    np.testing.assert_array_equal(result.used, images > 0.05 * rho_0)
+    changed = (result.used != matte.used).mean()
+    print(f"observations kept or dropped differently because of the highlight: {100 * changed:.2f}%")
+    assert changed < 0.005  # the highlight barely moves the threshold
+    assert not result.used[5, :, :20].any()  # the cast shadow is left out
+    former = images < 0.05 * images.max(axis=0)  # relative to the brightest: the highlight
+    assert (former & matte.used).sum() > 0.1 * matte.used.sum()  # ... dropped more than 10% of the good observations
+
+
+def test_separate_specular_recovers_a_dichromatic_surface():
+    """v_i = d_i a + s_i (1, 1, 1) with a known diffuse colour a (varying over the field) and a
+    specular part that is 0 for at least one observation of each pixel."""
+    rng = np.random.default_rng(3)
+    z, p, q = plane_and_bump(shape=(24, 32))
+    truth = normals_from_slopes(0.3 * p, 0.3 * q)
+    lights = four_lights()
+    shading = render_lambertian(truth, 1.0, lights)
+    colour = np.array([0.6, 0.41, 0.33])[:, None, None] * (1 + 0.05 * np.sin(np.arange(32) / 5))[None, None, :]
+    specular = rng.uniform(0.0, 0.8, shading.shape) * (rng.random(shading.shape) < 0.5)
+    specular[rng.integers(0, 4, size=shading.shape[1:]), np.arange(24)[:, None], np.arange(32)[None, :]] = 0.0
+    bands = [shading * colour[c] + specular for c in range(3)]
+    separation = separate_specular(*bands, smoothing_px=1)
+    np.testing.assert_allclose(separation.specular, specular, atol=1e-5)
+    for c, band in enumerate(("red", "green", "blue")):
+        np.testing.assert_allclose(separation.diffuse[band], shading * colour[c], atol=1e-5)
+    flagged = separation.highlights(bands[1])
+    np.testing.assert_array_equal(flagged, specular > 0.5 * shading * colour[1])
+
+
+@pytest.mark.slow
+def test_cross_band_highlights_on_a_shiny_sphere_and_skin_patch():
+    """Simulated rough dielectric coat, surface reflection 10x skin's: the robust solver with
+    the other bands' highlight flags beats plain least squares, and the default (new shadow
+    rule) beats the former brightest-relative rule where highlights are sharp."""
+    from tests.helpers.shiny import light_set, render, skin_patch, sphere
+
+    for name, (height, normals, mask) in (("sphere", sphere()), ("skin", skin_patch())):
+        for count, roughness in ((4, 0.2), (50, 0.1), (12, 0.4)):
+            lights = light_set(count)
+            images = render(height, normals, lights, specular_strength=10.0, roughness=roughness)
+            flags = separate_specular(images["red"], images["green"], images["blue"]).highlights(images["green"])
+            green = images["green"]
+
+            def error(**options):
+                return float(np.nanmean(angular_error_degrees(photometric_stereo(green, lights, **options).normals, normals)[mask]))
+
+            plain = error(shadow_fraction=0.0)
+            former = error(shadow_fraction=0.0, exclude=green < 0.05 * green.max(axis=0))
+            default, robust = error(), error(solver="robust", highlights=flags)
+            print(f"{name} {count} lights m={roughness}: plain {plain:.2f} former {former:.2f} default {default:.2f} cross-band robust {robust:.2f}")
+            assert robust < 0.6 * plain
+            if count == 4:  # the robust solver alone, with its few-lights rule
+                assert error(solver="robust") < plain
+            if count == 50 and roughness == 0.1:
+                assert default < former - 5
+
+
+@pytest.mark.slow
+def test_robust_solver_on_translucent_skin_stays_with_least_squares():
+    """All-effects simulated forehead (translucency, interreflection, a skin-level coat), 4
+    lights: the robust solver's few-lights rule must not take translucency's departures from
+    Lambert's law for highlights."""
+    from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+
+    surface = make_surface(preset_spec("forehead-moderate", size_px=160), seed=0)
+    bands, _ = simulate_acquisition(surface, default_settings(skin="dark"), seed=0)
+    for band in ("red", "green", "blue", "white"):
+        images, lights = bands[band]
+        errors = [float(np.nanmean(angular_error_degrees(photometric_stereo(images, lights, solver=solver).normals, surface.normals)))
+                  for solver in ("least-squares", "robust")]
+        print(band, errors)
+        assert errors[1] <= errors[0] + 0.15, band
+
+
+def test_residual_is_the_rms_over_the_observations_used():
+    """With saturated observations left out, the residual is sqrt(sum over the used lights of
+    (I_i - g . s_i)^2 / number used), computed here independently per pixel."""
+    rng = np.random.default_rng(11)
+    z, p, q = plane_and_bump(shape=(12, 15))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    slant = np.radians(np.repeat([25.0, 45.0], 4))
+    tilt = np.radians(np.arange(8) * 45.0)
+    lights = np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
+    images = (render_lambertian(truth, 0.5, lights) + rng.normal(0, 0.01, (8, 12, 15))).astype(np.float32)
+    images[0, :6] = np.nan  # saturated in the top half: 7 of 8 used there
+    images[3, :, :5] = np.nan
+    result = photometric_stereo(images, lights, shadow_fraction=0.0)
+    for (r, c), used in np.ndenumerate(result.lights_used):
+        keep = np.isfinite(images[:, r, c])
+        assert used == keep.sum()
+        g, *_ = np.linalg.lstsq(lights[keep], images[keep, r, c].astype(float), rcond=None)
+        expected = np.sqrt(np.mean((images[keep, r, c] - lights[keep] @ g) ** 2))
+        assert result.residual[r, c] == pytest.approx(expected, rel=1e-3)

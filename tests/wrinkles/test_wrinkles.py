@@ -1,0 +1,133 @@
+"""Per-wrinkle measures against the simulator's exact wrinkles."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from skintopo.evaluation import match_wrinkle
+from skintopo.segmentation import segment_wrinkles
+from skintopo.synth import make_surface, preset_spec
+from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
+from skintopo.wrinkles import centre_lines, measure_wrinkles, wrinkle_frame
+
+TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10}
+
+
+def relative_errors(surface, *, require_all=True):
+    """Each simulated wrinkle's measures against its geometry (synth.geometric_measures: the
+    wrinkle alone, exact, never filtered), matched by overlap of the half-depth regions; None
+    for a wrinkle not found (an error unless ``require_all`` is false)."""
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    errors = []
+    for index, wrinkle in enumerate(surface.spec.wrinkles):
+        measured = match_wrinkle(measures, surface.wrinkle_labels == index + 1)
+        assert measured is not None or not require_all, f"wrinkle {index} not found"
+        if measured is None:
+            errors.append(None)
+            continue
+        expected = geometric_measures(wrinkle)
+        errors.append({name: getattr(measured, name) / expected[name] - 1 for name in TOLERANCES})
+    return measures, errors
+
+
+@pytest.mark.parametrize("preset", ["forehead-low", "forehead-moderate", "forehead-high"])
+def test_measures_of_known_wrinkles_on_smooth_skin(preset):
+    spec = dataclasses.replace(preset_spec(preset, size_px=256), microrelief=False)
+    surface = make_surface(spec, seed=1)
+    measures, errors = relative_errors(surface)
+    for e in errors:
+        print(preset, {k: f"{100 * v:+.1f}%" for k, v in e.items()})
+    assert len(measures.wrinkles) == len(spec.wrinkles)
+    for e in errors:
+        assert all(abs(e[name]) <= tolerance for name, tolerance in TOLERANCES.items()), e
+
+
+@pytest.mark.parametrize("shape", ["V", "U", "G"])
+@pytest.mark.parametrize("width_um", [150.0, 1000.0])
+def test_depth_width_length_and_volume_of_narrow_and_wide_profiles(shape, width_um):
+    """The S-filter once filled the floor of narrow wrinkles (-10 to -25% in depth): with none,
+    a 0.15 mm wrinkle (7.5 pixels; a V is sampled off its cusp) keeps its depth to 3%, and a curved
+    (5 mm radius) wide one its length and width."""
+    wrinkle = Wrinkle(depth_um=200.0, width_um=width_um, length_um=4000.0, orientation_deg=7.0, shape=shape,
+                      curvature_per_mm=0.2 if width_um > 500 else 0.0)
+    surface = make_surface(SurfaceSpec(size_px=(320, 320), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
+    measures, errors = relative_errors(surface)
+    print(shape, width_um, {k: f"{100 * v:+.2f}%" for k, v in errors[0].items()})
+    assert abs(errors[0]["max_depth_um"]) < 0.03 and abs(errors[0]["length_mm"]) < 0.01
+    assert abs(errors[0]["mean_width_mm"]) < 0.03 and abs(errors[0]["volume_mm3"]) < 0.05
+    assert measures.wrinkles[0].mean_depth_um <= measures.wrinkles[0].max_depth_um
+
+
+@pytest.mark.slow
+def test_random_fields_on_smooth_skin_within_the_issue_tolerances():
+    """Random fields (synth.random_wrinkle_spec: V/U/G, 0.15-1.2 mm wide, 20-300 um deep,
+    straight or arcs down to 5 mm radius), smooth skin, no crossings: every measure of every
+    wrinkle found within the tolerances of issue 17 (5% depths and length, 10% width and
+    volume). Detection is not asserted here: the segmentation misses some shallow narrow
+    wrinkles (here 57 um deep, 0.19 mm wide and 31 um, 0.42 mm; its 0.6 mm band-pass leaves
+    them below its 25 um minimum depth); bench/bench_wrinkles.py counts it, with microrelief
+    and crossing pairs."""
+    failures, measured = [], 0
+    for seed in range(8):
+        surface = make_surface(random_wrinkle_spec(np.random.default_rng(1000 + seed), microrelief=False), seed=seed)
+        for index, e in enumerate(relative_errors(surface, require_all=False)[1]):
+            if e is None:
+                continue
+            measured += 1
+            failures += [(seed, index, name, round(e[name], 3)) for name, tolerance in TOLERANCES.items() if abs(e[name]) > tolerance]
+    assert measured >= 12 and not failures
+
+
+def test_mean_depth_never_exceeds_max_depth():
+    """A property of the definitions (both read from one centre-line profile), on wrinkles
+    with furrows, roughness and noise, where a separate robust maximum once gave 77.49 um
+    mean against 76.65 um max."""
+    rng = np.random.default_rng(7)
+    for seed in range(3):
+        surface = make_surface(random_wrinkle_spec(rng, microrelief=True), seed=seed)
+        for w in measure_wrinkles(surface.height, segment_wrinkles(surface.height)).wrinkles:
+            assert w.mean_depth_um <= w.max_depth_um
+
+
+def test_centre_line_is_the_longest_path_without_side_branches():
+    skeleton = np.zeros((40, 80), bool)
+    skeleton[20, 10:70] = True  # 60 pixels along x
+    skeleton[21:30, 40] = True  # a side branch of 9 pixels
+    skeleton[5, 5:8] = True  # a second piece, 3 pixels
+    paths = centre_lines(skeleton, (2.0, 1.5))
+    assert sorted(len(path) for path in paths) == [3, 60]
+    main_path = max(paths, key=len)
+    frame = wrinkle_frame(main_path, (2.0, 1.5), smoothing_um=100.0, extension_um=0.0, half_span_um=3.0, step_um=0.5)
+    assert frame.s[-1] == pytest.approx(59 * 1.5, abs=0.5)
+    np.testing.assert_allclose((frame.direction_deg() + 90) % 180 - 90, 0.0, atol=1e-6)  # axial: 180 is 0
+
+
+def test_frame_of_a_staircase_line_has_its_true_length_and_direction():
+    """An 8-connected digital line at 22.5 degrees: counting steps of 1 and sqrt(2) pixels
+    overstates its length by 8%; the smoothed frame is within 0.5%, and its direction
+    within 0.5 degrees."""
+    angle = np.radians(22.5)
+    columns = np.arange(200)
+    path = np.stack([np.rint(100 - columns * np.tan(angle)).astype(int), columns], axis=-1)  # rows run down: y up
+    frame = wrinkle_frame(path, (1.0, 1.0), smoothing_um=25.0, extension_um=0.0, half_span_um=2.0, step_um=0.5)
+    assert frame.s[-1] == pytest.approx(199 / np.cos(angle), rel=0.005)
+    np.testing.assert_allclose(np.median(frame.direction_deg()), 22.5, atol=0.5)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0, 135.0])
+def test_orientation_centroid_and_severity_of_a_known_straight_wrinkle(angle):
+    """One straight wrinkle at a known angle (counter-clockwise from +x, y up) and position on
+    smooth skin: orientation within 2 degrees (as an axial angle), centroid within 0.1 mm,
+    severity = mean depth x length / 100 by definition."""
+    wrinkle = Wrinkle(depth_um=120.0, width_um=500.0, length_um=3500.0, orientation_deg=angle, centre_um=(300.0, -200.0), shape="U")
+    spec = SurfaceSpec(size_px=(256, 256), pixel_um=20.0, wrinkles=(wrinkle,), microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
+    surface = make_surface(spec, seed=0)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    assert len(measures.wrinkles) == 1
+    w = measures.wrinkles[0]
+    difference = (w.orientation_deg - angle + 90) % 180 - 90
+    assert abs(difference) < 2.0 and 0 <= w.orientation_deg < 180
+    centre_x_mm, centre_y_mm = (2560 + 300) / 1000, (2560 + 200) / 1000  # image coordinates: x right, rows down from the top
+    assert w.centroid_x_mm == pytest.approx(centre_x_mm, abs=0.1) and w.centroid_y_mm == pytest.approx(centre_y_mm, abs=0.1)
+    assert w.severity == pytest.approx(w.mean_depth_um * w.length_mm / 100, rel=1e-12)
