@@ -3,6 +3,15 @@
 import subprocess
 import sys
 
+import numpy as np
+import pytest
+
+from skintopo.errors import SkinTopoError
+from skintopo.height import integrate_slopes
+from skintopo.normals import photometric_stereo
+from skintopo.registration import Registration, apply_registration
+from tests.helpers.analytic import four_lights
+
 BLOCK_CLI = """
 import importlib, importlib.abc, pkgutil, sys
 class NoCli(importlib.abc.MetaPathFinder):
@@ -25,3 +34,20 @@ def test_library_imports_and_runs_without_the_command_line():
     run = subprocess.run([sys.executable, "-c", BLOCK_CLI], capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
     assert "modules" in run.stdout and int(run.stdout.split()[0]) >= 25
+
+
+def test_contract_violations_are_plain_value_errors_and_bad_input_is_a_skintopo_error():
+    """Arrays of the wrong shape from a caller are a bug (``ValueError``, not the user-facing
+    ``SkinTopoError``); a bad value given by the user is a ``SkinTopoError``."""
+    lights = four_lights()[:3]
+    contract_violations = [
+        lambda: integrate_slopes(np.zeros((4, 4)), np.zeros((4, 5)), 1.0),
+        lambda: photometric_stereo(np.zeros((2, 4, 4)), lights),
+        lambda: apply_registration(np.zeros((4, 4, 3)), Registration((0.0, 0.0), 0.0, 1.0, 0.0)),
+    ]
+    for call in contract_violations:
+        with pytest.raises(ValueError) as raised:
+            call()
+        assert not isinstance(raised.value, SkinTopoError), raised.value
+    with pytest.raises(SkinTopoError, match="unknown solver"):
+        photometric_stereo(np.zeros((3, 4, 4)), lights, solver="magic")

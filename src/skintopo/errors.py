@@ -7,6 +7,9 @@ class SkinTopoError(ValueError):
     bad values catch it too.
 
     The command-line interface prints the message of these errors without a traceback.
+    A library function called against its contract (arrays of the wrong shape or kind, which
+    no input file can cause once it has been validated) raises a plain ``ValueError`` or
+    ``TypeError`` instead: that is a bug in the caller, and its traceback is wanted.
     """
 
 

@@ -115,7 +115,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     """
     z = np.asarray(z, dtype=np.float64)
     if z.ndim != 2:
-        raise SkinTopoError(f"expected a 2-D height map, got shape {z.shape}")
+        raise ValueError(f"expected a 2-D height map, got shape {z.shape}")
     if not (cutoff_um > 0):
         raise SkinTopoError(f"cut-off must be positive, got {cutoff_um} um")
     dy, dx = pixel_spacing(spacing)
@@ -374,7 +374,7 @@ def profile_gaussian_filter(z, spacing_um, cutoff_um):
     """
     z = np.asarray(z, dtype=np.float64)
     if z.ndim != 1:
-        raise SkinTopoError(f"expected a 1-D profile, got shape {z.shape}")
+        raise ValueError(f"expected a 1-D profile, got shape {z.shape}")
     if not (cutoff_um > 0):
         raise SkinTopoError(f"cut-off must be positive, got {cutoff_um} um")
     valid = np.isfinite(z)

@@ -63,7 +63,7 @@ def normals_to_gradients(normals):
     """
     normals = np.asarray(normals, dtype=np.float64)
     if normals.ndim != 3 or normals.shape[2] != 3:
-        raise SkinTopoError(f"normals must have shape (rows, columns, 3), got {normals.shape}")
+        raise ValueError(f"normals must have shape (rows, columns, 3), got {normals.shape}")
     nz = normals[..., 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         ok = nz > MIN_NZ
@@ -77,7 +77,7 @@ def _array_gradients(p, q, spacing):
     p = np.asarray(p, dtype=np.float64)
     q = np.asarray(q, dtype=np.float64)
     if p.shape != q.shape or p.ndim != 2:
-        raise SkinTopoError(f"p and q must be 2-D arrays of one shape, got {p.shape} and {q.shape}")
+        raise ValueError(f"p and q must be 2-D arrays of one shape, got {p.shape} and {q.shape}")
     dy, dx = pixel_spacing(spacing)
     return p * dx, -q * dy
 
@@ -257,7 +257,7 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != gx.shape:
-            raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {gx.shape}")
+            raise ValueError(f"mask shape {mask.shape} differs from slope shape {gx.shape}")
         valid &= mask
     gx = np.where(valid, gx, np.nan)
     gy = np.where(valid, gy, np.nan)
@@ -359,7 +359,7 @@ def integrate_slopes(p, q, spacing, *, mask=None, method=DEFAULT_INTEGRATOR):
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != p.shape:
-            raise SkinTopoError(f"mask shape {mask.shape} differs from slope shape {p.shape}")
+            raise ValueError(f"mask shape {mask.shape} differs from slope shape {p.shape}")
         valid &= mask
     if method == AUTO_INTEGRATOR:
         if valid.all():

@@ -320,7 +320,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         raise SkinTopoError(f"unknown scale {scale!r}; choose from {list(SCALES)}")
     mask = np.ones(shape, bool) if mask is None else np.asarray(mask, dtype=bool)
     if mask.shape != shape:
-        raise SkinTopoError(f"mask shape {mask.shape} differs from the camera's {shape}")
+        raise ValueError(f"mask shape {mask.shape} differs from the camera's {shape}")
     settings = dict(band=band, shadow_fraction=shadow_fraction, tolerance_um=tolerance_um, max_iterations=max_iterations,
                     integrator=integrator)
     options = {"scale": scale, **settings}

@@ -257,7 +257,7 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     if problems:
         raise SkinTopoError("; ".join(problems))
     if images.ndim != 3 or images.shape[0] != lights.shape[0]:
-        raise SkinTopoError(f"expected images of shape (m={lights.shape[0]}, rows, columns), got {images.shape}")
+        raise ValueError(f"expected images of shape (m={lights.shape[0]}, rows, columns), got {images.shape}")
     if not 0 <= shadow_fraction < 1:
         raise SkinTopoError(f"shadow_fraction must be in [0, 1), got {shadow_fraction}")
     if solver not in SOLVERS:
@@ -267,7 +267,7 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
         mask = np.ones((rows, columns), dtype=bool)
     mask = np.asarray(mask, dtype=bool)
     if mask.shape != (rows, columns):
-        raise SkinTopoError(f"mask shape {mask.shape} differs from image shape {(rows, columns)}")
+        raise ValueError(f"mask shape {mask.shape} differs from image shape {(rows, columns)}")
 
     flat_mask = mask.ravel()
     whole_field = bool(flat_mask.all())
@@ -451,7 +451,7 @@ def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):
 
     v = np.stack([np.asarray(c, dtype=np.float32) for c in (red, green, blue)], axis=-1)
     if v.ndim != 4:
-        raise SkinTopoError(f"expected three stacks of images (m, rows, columns), got shape {v.shape[:-1]}")
+        raise ValueError(f"expected three stacks of images (m, rows, columns), got shape {v.shape[:-1]}")
     parallel = v.sum(axis=-1) / np.float32(np.sqrt(3))
     perpendicular = np.sqrt(np.maximum((v * v).sum(axis=-1) - parallel * parallel, 0))
     with np.errstate(invalid="ignore", divide="ignore"):

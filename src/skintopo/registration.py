@@ -161,7 +161,7 @@ def apply_registration(image, registration: Registration, *, order=1):
     with the transform found from the height maps (bilinear by default; NaN outside)."""
     image = np.asarray(image, dtype=float)
     if image.ndim != 2:
-        raise SkinTopoError(f"apply_registration needs a single-channel image, got shape {image.shape}")
+        raise ValueError(f"apply_registration needs a single-channel image, got shape {image.shape}")
     return _warp(image, registration.shift_px, registration.rotation_deg, registration.scale, order=order)
 
 
