@@ -226,3 +226,24 @@ def add_measure_options(parser):
                         help="extra region NAME=x0,y0,x1,y1 in um from the top-left corner (pixel edges; repeatable)")
     add_segmentation_options(parser)
     add_wrinkle_options(parser)
+
+
+def coordinate_pair(text):
+    """X,Y in micrometres."""
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like X,Y (micrometres)") from None
+    return x, y
+
+
+def depth_treatment(text):
+    """ID=FACTOR: wrinkle ID made FACTOR times as deep."""
+    try:
+        wrinkle, factor = text.split("=")
+        wrinkle, factor = int(wrinkle), float(factor)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must look like ID=FACTOR, e.g. 2=0.7") from None
+    if not factor > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the depth factor must be positive")
+    return wrinkle, factor

@@ -52,6 +52,8 @@ __all__ = [
     "preset_spec",
     "simulate_acquisition",
     "write_synthetic_acquisition",
+    "another_visit",
+    "simulate_to_folder",
 ]
 
 _FOREHEAD = {  # (depth um, shape) per wrinkle, width um
@@ -167,6 +169,42 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
         if not manifest:
             (staging / "acquisition.json").unlink()
     return Path(out)
+
+
+def another_visit(spec: SurfaceSpec, *, depth_factors=None, shift_um=(0.0, 0.0)) -> SurfaceSpec:
+    """The same skin at another visit: wrinkle i (1-based, in the order of ``spec.wrinkles``)
+    made ``depth_factors[i]`` times as deep (a treatment), and the field displaced by
+    ``shift_um`` (x right, y up, micrometres)."""
+    factors = dict(depth_factors or {})
+    unknown = sorted(i for i in factors if not 1 <= i <= len(spec.wrinkles))
+    if unknown:
+        raise SkinTopoError(f"the skin has wrinkles 1..{len(spec.wrinkles)}, not {unknown}")
+    wrinkles = tuple(replace(w, depth_um=w.depth_um * factors.get(i, 1.0)) for i, w in enumerate(spec.wrinkles, start=1))
+    return replace(spec, wrinkles=wrinkles, shift_um=tuple(shift_um))
+
+
+def simulate_to_folder(out, spec: SurfaceSpec, settings: RenderSettings, *, seed=0, capture_seed=None, device=None, manifest=True,
+                       overwrite=False, progress=iter) -> SkinSurface:
+    """Simulate the skin of ``spec`` (surface ``seed``) captured with ``settings`` (sensor
+    noise ``capture_seed``, default ``seed``: another value is a repeat capture of the same
+    skin) and write it as an acquisition folder with its ground truth
+    (:func:`write_synthetic_acquisition`). With a ``device`` (:class:`skintopo.device.Device`)
+    the skin is rendered through its near-field LEDs and perspective camera
+    (:mod:`skintopo.synth.nearfield`). Returns the true surface (on the camera's grid)."""
+    capture_seed = seed if capture_seed is None else capture_seed
+    if device is None:
+        surface = make_surface(spec, seed=seed)
+        bands, info = simulate_acquisition(surface, settings, seed=capture_seed, progress=progress)
+    else:
+        from skintopo.synth.nearfield import camera_grid_surface, device_surface, simulate_device_acquisition
+
+        rendered = device_surface(spec, device, seed=seed)
+        images, info = simulate_device_acquisition(rendered, device, settings, seed=capture_seed)
+        surface = camera_grid_surface(rendered, device)
+        bands = {band: (stack, device.central_directions()) for band, stack in images.items()}
+    write_synthetic_acquisition(out, surface, bands, settings=settings, seed=seed, info=info, overwrite=overwrite,
+                                capture_seed=capture_seed, manifest=manifest, device=device)
+    return surface
 
 
 def default_settings(**changes):
