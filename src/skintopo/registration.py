@@ -32,7 +32,7 @@ from skimage.registration import phase_cross_correlation
 from skimage.transform import warp_polar
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import polynomial_form
+from skintopo.filters import level
 from skintopo.heightmap import HeightMap
 
 CAUCHY_FACTOR = 2.385
@@ -51,7 +51,8 @@ class Registration:
 
 
 def _levelled(height: HeightMap):
-    return np.where(height.mask, height.z - polynomial_form(height.z, height.spacing, 2, height.mask), 0.0)
+    """The height without its least-squares quadratic form, 0 where it has no data."""
+    return np.where(height.mask, level(height, order=2).z, 0.0)
 
 
 def _warp(image, shift, angle_deg, scale, order=3, cval=np.nan, prefilter=True):

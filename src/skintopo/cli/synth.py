@@ -12,24 +12,14 @@ from skintopo.errors import SkinTopoError
 
 def run(args):
     from skintopo.outputs import check_output_folder
-    from skintopo.synth import PRESETS, Effects, another_visit, default_settings, optics_profile, preset_spec, simulate_to_folder
+    from skintopo.synth import (PRESETS, Effects, another_visit, default_settings, optics_profile, preset_spec, simulate_to_folder,
+                                write_calibration_target)
 
-    if args.target is not None and args.device is not None:
-        from skintopo.synth.nearfield import write_device_targets
-
-        check_output_folder(args.out, overwrite=args.overwrite)
-        write_device_targets(args.out, _device(args), seed=args.seed, overwrite=args.overwrite)
-        shared.say(args, f"wrote {Path(args.out).resolve()}: a chrome sphere at two places (place_1/, place_2/) and a flat "
-                         "target (flat/) through the device, design.json to calibrate, the true device in ground_truth.json")
-        return 0
     if args.target is not None:
-        from skintopo.synth.targets import write_sphere_target
-
         check_output_folder(args.out, overwrite=args.overwrite)
-        lights = default_settings().lights
-        write_sphere_target(args.out, args.target, lights, shape=(args.size, args.size), seed=args.seed, overwrite=args.overwrite)
-        shared.say(args, f"wrote {Path(args.out).resolve()}: {args.target} under {len(lights)} lights (sphere_1.png, ...; "
-                         "the true lights in ground_truth.json)")
+        written = write_calibration_target(args.out, args.target, device=_device(args), size_px=args.size, seed=args.seed,
+                                           overwrite=args.overwrite)
+        shared.say(args, f"wrote {Path(args.out).resolve()}: {written}")
         return 0
     if args.preset not in PRESETS:
         raise SkinTopoError(f"unknown preset {args.preset!r}; choose from {list(PRESETS)}")

@@ -54,6 +54,7 @@ __all__ = [
     "write_synthetic_acquisition",
     "another_visit",
     "simulate_to_folder",
+    "write_calibration_target",
 ]
 
 _FOREHEAD = {  # (depth um, shape) per wrinkle, width um
@@ -205,6 +206,25 @@ def simulate_to_folder(out, spec: SurfaceSpec, settings: RenderSettings, *, seed
     write_synthetic_acquisition(out, surface, bands, settings=settings, seed=seed, info=info, overwrite=overwrite,
                                 capture_seed=capture_seed, manifest=manifest, device=device)
     return surface
+
+
+def write_calibration_target(out, target, *, device=None, size_px=256, seed=0, overwrite=False) -> str:
+    """Write rehearsal images of a calibration ``target`` (``chrome-sphere``, ``matte-sphere``)
+    under the default lights, ``size_px`` square (:func:`skintopo.synth.targets.write_sphere_target`);
+    with a ``device``: a chrome sphere at two places and a flat target through its near-field
+    LEDs (:func:`skintopo.synth.nearfield.write_device_targets`). Returns what was written, in
+    words."""
+    if device is not None:
+        from skintopo.synth.nearfield import write_device_targets
+
+        write_device_targets(out, device, seed=seed, overwrite=overwrite)
+        return ("a chrome sphere at two places (place_1/, place_2/) and a flat target (flat/) through the device, design.json "
+                "to calibrate, the true device in ground_truth.json")
+    from skintopo.synth.targets import write_sphere_target
+
+    lights = default_lights()
+    write_sphere_target(out, target, lights, shape=(size_px, size_px), seed=seed, overwrite=overwrite)
+    return f"{target} under {len(lights)} lights (sphere_1.png, ...; the true lights in ground_truth.json)"
 
 
 def default_settings(**changes):
