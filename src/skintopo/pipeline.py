@@ -292,25 +292,31 @@ class Measurement:
         ]
 
 
-def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None) -> Measurement:
-    """Texture and fractal parameters (whole field and each region) and wrinkle measures of ``height``."""
+def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None, progress=iter) -> Measurement:
+    """Texture and fractal parameters (whole field and each region) and wrinkle measures of
+    ``height``. ``progress`` wraps the iteration over the steps (each a name; e.g. a tqdm bar)."""
     regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
     texture_options = {"level_order": options.texture.level_order, "p": options.texture.p, "q": options.texture.q}
-    texture, fractal_results = {}, ()
-    for name, region in regions.items():
-        if name == "field":  # its estimators' log-log points go to the report's plot
-            texture[name], fractal_results = measure_texture(region, **texture_options, return_fractal=True)
+    texture, fractal_results, segmentation, wrinkles = {}, (), None, None
+    for step in progress([*(f"texture: {name}" for name in regions), "wrinkle segmentation", "wrinkle measures"]):
+        if step == "texture: field":  # its estimators' log-log points go to the report's plot
+            texture["field"], fractal_results = measure_texture(height, **texture_options, return_fractal=True)
+        elif step.startswith("texture: "):
+            name = step.removeprefix("texture: ")
+            texture[name] = measure_texture(regions[name], **texture_options)
+        elif step == "wrinkle segmentation":
+            segmentation = segment_wrinkles(height, **options.segmentation.as_kwargs())
         else:
-            texture[name] = measure_texture(region, **texture_options)
-    segmentation = segment_wrinkles(height, **options.segmentation.as_kwargs())
-    wrinkles = measure_wrinkles(height, segmentation, **options.wrinkles.as_kwargs())
+            wrinkles = measure_wrinkles(height, segmentation, **options.wrinkles.as_kwargs())
     return Measurement(height, albedo, dict(source or {}), options, texture, fractal_results, segmentation, wrinkles)
 
 
-def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None) -> Measurement:
+def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None, step_progress=iter) -> Measurement:
     """Load an acquisition folder, make the height ``options.height`` asks for and measure it.
 
-    ``on_note`` receives notes meant for the user (e.g. an assumed pixel size)."""
+    ``progress`` wraps the iteration over the bands, ``step_progress`` that over the measure's
+    steps (:func:`measure_height`); ``on_note`` receives notes meant for the user (e.g. an
+    assumed pixel size)."""
     acquisition = load_acquisition(path, pixel_um=options.reconstruction.pixel_um, saturation=options.reconstruction.saturation)
     if acquisition.pixel_um_assumed and on_note is not None:
         on_note(f"{Path(path).name} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
@@ -322,7 +328,7 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
         note = made.physics.convergence_note()
         if note and on_note is not None:
             on_note(note)
-    return measure_height(made.height, options, albedo=made.albedo, source=source)
+    return measure_height(made.height, options, albedo=made.albedo, source=source, progress=step_progress)
 
 
 def acquisition_summary(acquisition):

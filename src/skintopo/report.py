@@ -1,8 +1,8 @@
 """A self-contained HTML report a clinician can read.
 
-One file, nothing loaded from anywhere (images are inline PNG data, the 3-D view and the
-profile viewer are a few lines of inline JavaScript drawing on a canvas), so it opens
-offline and leaks nothing. Every user-provided string is HTML-escaped. Large maps are
+One file, nothing loaded from anywhere (images are inline PNG data; the 3-D view, a lit
+WebGL surface with axes, and the profile viewer are inline JavaScript), so it opens offline
+and leaks nothing. Every user-provided string is HTML-escaped. Large maps are
 downsampled for display only (at most ``DISPLAY_PIXELS`` a side for images, ``MESH_CELLS``
 for the 3-D view); every number in the tables comes from the full-resolution data.
 Missing points (NaN) are shown as missing (transparent grey), never as zeros.
@@ -20,7 +20,7 @@ import numpy as np
 from markupsafe import Markup
 
 DISPLAY_PIXELS = 600
-MESH_CELLS = 90
+MESH_CELLS = 200  # a side of the 3-D view's mesh (WebGL 1 indexes at most 65536 vertices)
 PROFILE_POINTS = 400
 
 
@@ -173,6 +173,8 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
     ``evaluations`` {height map name: evaluation dict} when ground truth exists, with
     ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
     and options, shown as given (escaped)."""
+    from skintopo.texture import parameter_note
+
     field_mm = (height.shape[1] * height.spacing[1] / 1000, height.shape[0] * height.spacing[0] / 1000)
     surface_images = [("shaded height map", shaded_height_png(height))]
     if albedo is not None:
@@ -188,7 +190,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "dx": height.spacing[1] * profile_step, "dy": height.spacing[0] * profile_step,
     }
     mesh = {"z": _float32_base64(z), "shape": z.shape, "dx": height.spacing[1] * step, "dy": height.spacing[0] * step}
-    payload = json.dumps(grid | {"mesh": mesh, "exaggeration": exaggeration, "size": size,
+    payload = json.dumps(grid | {"mesh": mesh, "exaggeration": exaggeration,
                                  "mid": float(np.median(finite_z)) if finite_z.size else 0.0})
     context = {
         "title": title, "field_mm": field_mm, "shape": height.shape, "pixel_um": height.spacing[1],
@@ -197,7 +199,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "wrinkle_overlay": wrinkle_overlay_png(height, wrinkles) if wrinkles is not None else None,
         "wrinkle_rows": [[w.id, w.length_mm, w.orientation_deg, w.mean_depth_um, w.max_depth_um, w.mean_width_mm, w.cross_section_mm2,
                           w.volume_mm3, w.severity] for w in (wrinkles.wrinkles if wrinkles is not None else ())],
-        "parameter_rows": [[p.name, p.value, p.unit, p.reference] for p in parameters],
+        "parameter_rows": [[p.name, p.value, p.unit, p.reference, parameter_note(p)] for p in parameters],
         "regions": [(name, box) for name, (box, _) in (regions or {}).items()],
         "region_rows": _region_rows(parameters, regions),
         "fractal_plot": fractal_png(fractal_results) if fractal_results else None,
@@ -229,11 +231,26 @@ def _setting_rows(settings, prefix=""):
 
 
 def _region_rows(parameters, regions):
-    """One row per field parameter: name, unit, field value, then each region's value."""
+    """One row per field parameter: name, unit, field value, each region's value, and the
+    note of any value without one or out of range (:func:`skintopo.texture.parameter_note`),
+    naming where it applies."""
+    from skintopo.texture import parameter_note
+
     if not regions:
         return []
-    values = [{p.name: p.value for p in region} for _, region in regions.values()]
-    return [[p.name, p.unit, p.value, *(region.get(p.name) for region in values)] for p in parameters]
+    names = ["field", *regions]
+    by_region = [{p.name: p for p in parameters}] + [{p.name: p for p in region} for _, region in regions.values()]
+    rows = []
+    for p in parameters:
+        found = [values.get(p.name) for values in by_region]  # None where a region lacks the parameter
+        notes = {}
+        for where, parameter in zip(names, found):
+            note = parameter_note(parameter) if parameter is not None else ""
+            if note:
+                notes.setdefault(note, []).append(where)
+        rows.append([p.name, p.unit, *(None if q is None else q.value for q in found),
+                     "; ".join(f"{', '.join(where)}: {note}" for note, where in notes.items())])
+    return rows
 
 
 @functools.cache

@@ -20,10 +20,8 @@ import skintopo.batch
 from skintopo.batch import run_study
 from skintopo.errors import SkinTopoError
 from skintopo.pipeline import MeasureOptions, SegmentationOptions
+from tests.helpers import browser
 from tests.helpers.study import write_study
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-
 
 CLI = [sys.executable, "-m", "skintopo.cli"]
 
@@ -293,15 +291,12 @@ def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(t
     page = (out / "summary.html").read_text()
     assert "mean wrinkle depth" in page and "µm" in page and "items/S1/forehead/V1/report.html" in page
     assert "default-src 'none'" in page and "http://" not in page and "https://" not in page
-    if CHROMIUM is None:
+    if browser.CHROMIUM is None:
         pytest.skip("no chromium on this machine (Debian package 'chromium'): summary page not rendered")
     for width in (1400, 390):
         shot = tmp_path / f"summary-{width}.png"
-        run = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run", "--disable-background-networking",
-                              "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
-                              f"--screenshot={shot}", f"--window-size={width},2400", (out / "summary.html").as_uri()],
-                             capture_output=True, text=True, timeout=120)
-        assert shot.is_file(), run.stderr
+        stderr = browser.screenshot(out / "summary.html", shot, width, 2400, tmp_path / "profile")
+        assert shot.is_file(), stderr
         import imagecodecs
 
         image = imagecodecs.imread(shot)[..., :3]

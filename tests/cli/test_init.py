@@ -1,6 +1,8 @@
 """``skintopo init``: a manifest from a folder of images and the calibrated lights."""
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 
@@ -44,3 +46,17 @@ def test_init_writes_a_manifest_from_a_folder_and_the_calibrated_lights(tmp_path
     lights_file.write_text("{}")
     assert main(["init", str(folder), "--lights", str(lights_file), "--pixel-um", "10", "--overwrite", "-q"]) == 2
     assert "not a lights file of 'skintopo calibrate lights'" in capsys.readouterr().err
+
+
+def test_the_readme_manifest_example_is_a_valid_acquisition(tmp_path):
+    """The manifest printed in the README's "Bring your own device" loads as written, with
+    four lights per band, once images of those names exist."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    manifest = re.search(r"## Bring your own device.*?```json\n(.*?)```", readme, re.S).group(1)
+    (tmp_path / "acquisition.json").write_text(manifest)
+    rng = np.random.default_rng(0)
+    for entry in json.loads(manifest)["images"]:
+        write_png(tmp_path / entry["file"], rng.integers(1000, 60000, size=(24, 32)).astype(np.uint16))
+    acquisition = load_acquisition(tmp_path)
+    assert sorted(acquisition.bands) == ["blue", "green", "red"] and all(len(b.lights) == 4 for b in acquisition.bands.values())
+    assert acquisition.pixel_um == 20.0

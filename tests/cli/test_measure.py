@@ -1,8 +1,6 @@
 """``skintopo measure``: outputs, the report opened in headless Chromium, refused inputs, and a device acquisition measured."""
 
 import json
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -10,6 +8,7 @@ import pytest
 from skintopo.cli import main
 from skintopo.filters import polynomial_form
 from skintopo.heightmap import HeightMap
+from tests.helpers import browser
 from tests.helpers.analytic import fbm
 
 
@@ -18,9 +17,6 @@ def _after_form(height, truth):
     valid = np.isfinite(error)
     form = polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid)
     return float(np.sqrt(np.mean((error - form)[valid] ** 2)))
-
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def test_device_acquisition_from_synth_to_measure(tmp_path):
@@ -78,31 +74,33 @@ def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
                      if p["region"] == "centre" and p["name"] == "Sa")
     page = (out / "report.html").read_text()
     assert "<h2>Regions</h2>" in page and "centre = 800, 800, 2400, 2400" in page and f"{centre_sa:.5g}" in page
-    if CHROMIUM is None:
+    if browser.CHROMIUM is None:
         pytest.skip("no chromium on this machine (Debian package 'chromium'): report not rendered")
     screenshot = tmp_path / "shot.png"
-    run = subprocess.run(
-        [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--enable-logging=stderr", "--v=0",
-         f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={screenshot}", "--window-size=1100,1900",
-         (out / "report.html").as_uri()],
-        capture_output=True, text=True, timeout=120,
-    )
-    assert "Uncaught" not in run.stderr  # no JavaScript error in the console
+    stderr = browser.screenshot(out / "report.html", screenshot, 1400, 1900, tmp_path / "profile")
+    assert "Uncaught" not in stderr  # no JavaScript error in the console
     from skintopo.formats import read_png
 
     image = read_png(screenshot)[..., :3]
-    # The 3-D canvas sits below the two surface images: its area must not be blank.
-    band = image[int(0.42 * image.shape[0]) : int(0.62 * image.shape[0]), 40:700]
+    # The 3-D view sits below the two surface images: lit (many shades), not blank.
+    band = image[int(0.40 * image.shape[0]) : int(0.70 * image.shape[0]), 40:740]
     assert band.std() > 20 and len(np.unique(band.reshape(-1, 3), axis=0)) > 200
     # On a phone (390 px) nothing is cut off: wide tables scroll inside their box, so the last
     # columns of the whole page are background only.
     phone = tmp_path / "phone.png"
-    subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
-                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                    f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={phone}", "--window-size=390,6000",
-                    (out / "report.html").as_uri()], capture_output=True, text=True, timeout=120)
+    browser.screenshot(out / "report.html", phone, 390, 6000, tmp_path / "profile")
     assert (read_png(phone)[..., :3][:, -6:] >= 250).all(), "the report reaches the right edge at 390 px"
+    # The 3-D view is WebGL, lit, and answers the mouse, the wheel, two fingers and one finger;
+    # Reset view returns exactly to the start.
+    probe = browser.probe_3d_view(out / "report.html", tmp_path)
+    assert probe["webgl"], "no WebGL in headless Chromium"
+    start = probe["start"]
+    assert start["covered"] > 0.2 and start["spread"] > 15  # the surface fills the view and its shading varies
+    assert probe["drag"]["yaw"] != start["yaw"] and probe["drag"]["checksum"] != start["checksum"]
+    assert probe["wheel"]["distance"] < 0.8 * start["distance"] and probe["wheel"]["covered"] > start["covered"]
+    assert probe["pinch"]["distance"] < 0.5 * probe["wheel"]["distance"]  # fingers spread 40 -> 120 px: 3 x closer
+    assert probe["swipe"]["yaw"] != probe["pinch"]["yaw"] and probe["swipe"]["pitch"] != probe["pinch"]["pitch"]
+    assert probe["reset"] == start
 
 
 def test_invalid_acquisition_stops_before_any_output(tmp_path, capsys):
@@ -123,3 +121,35 @@ def test_measure_command(tmp_path, capsys):
     assert "Sa" in capsys.readouterr().out
     assert main(["measure", str(tmp_path / "h.x3p"), "-o", str(tmp_path / "o2"), "--region", "far=0,0,5000,5000", "-q"]) == 2
     assert not (tmp_path / "o2").exists()
+
+
+def test_progress_bars_show_in_a_terminal_of_unknown_size(tmp_path):
+    """In a pseudo-terminal whose size was never set (tqdm draws nothing on 0 rows), measure
+    shows its band and step bars on stderr; -q shows none."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    HeightMap(fbm(96, 0.6, 1) * 20, 10.0).save(tmp_path / "h.x3p")
+
+    def terminal_output(*extra):
+        leader, follower = pty.openpty()
+        run = subprocess.Popen([sys.executable, "-m", "skintopo.cli", "measure", str(tmp_path / "h.x3p"), "-o",
+                                str(tmp_path / f"out{len(extra)}"), *extra], stdin=follower, stdout=follower, stderr=follower)
+        os.close(follower)
+        output = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the terminal closed with the process
+                break
+            if not chunk:
+                break
+            output += chunk
+        assert run.wait(timeout=120) == 0
+        return output.decode(errors="replace")
+
+    shown = terminal_output()
+    assert "measure:" in shown and "step/s, wrinkle measures]" in shown and "write:" in shown
+    assert "step" not in terminal_output("-q")

@@ -44,6 +44,21 @@ def test_report_shows_each_region_beside_the_field():
     region = measure_texture(crop_region(height, box, "left"))
     page = build_report(title="regions", height=height, parameters=measure_texture(height), regions={"left": (box, region)})
     rows = dict(re.findall(r"<tr><td>(Sa)</td><td>um</td>(.*?)</tr>", page))
-    field, left = (float(v) for v in re.findall(r"<td>([^<]*)</td>", rows["Sa"]))
-    assert left < 1e-9 and field > 1.0
+    field, left, note = re.findall(r"<td>([^<]*)</td>", rows["Sa"])
+    field, left = float(field), float(left)
+    assert left < 1e-9 and field > 1.0 and note == ""
     assert "left = 0, 0, 320, 640" in page
+
+
+def test_values_without_meaning_carry_their_reason_in_the_report():
+    """A dimension outside [2, 3] and a missing Str are shown with why, in the field's table
+    and, naming the region, in the regions' table."""
+    from skintopo.texture import Parameter
+
+    field = [Parameter("Sa", 1.0, "um", "ISO"), Parameter("Str", float("nan"), "", "ISO"), Parameter("D_power-spectrum", 1.7, "", "PSD")]
+    corner = [Parameter("Sa", 2.0, "um", "ISO"), Parameter("Str", 0.5, "", "ISO"), Parameter("D_power-spectrum", 2.4, "", "PSD")]
+    z = np.random.default_rng(0).normal(size=(32, 32))
+    page = build_report(title="t", height=HeightMap(z, 10.0), parameters=field, regions={"corner": ((0, 0, 100, 100), corner)})
+    assert page.count("outside [2, 3]") == 2 and "field: outside [2, 3]" in page
+    assert "field: the autocorrelation does not fall to s = 0.2" in page
+    assert "corner: outside" not in page

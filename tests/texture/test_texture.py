@@ -8,7 +8,7 @@ import scipy.stats
 
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
-from skintopo.texture import measure_texture, parameters_by_name
+from skintopo.texture import Parameter, measure_texture, parameter_note, parameters_by_name
 from skintopo.texture.areal import MaterialRatio, autocorrelation, functional_parameters, height_parameters, hybrid_parameters
 from skintopo.texture.fractal import ESTIMATORS, fractal_dimension, power_spectrum
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
@@ -365,3 +365,16 @@ def test_masked_points_are_left_out():
     reference = height_parameters(HeightMap(np.where(mask, z, np.nan), 1.0))
     assert ours == pytest.approx(reference)
     assert ours["Sp"] < 10
+
+
+def test_every_missing_or_impossible_value_has_its_reason():
+    """Parallel grooves: the autocorrelation never decays along them, so Str has no value and
+    says why; a flat map has no skewness; a fractal dimension outside [2, 3] is flagged and one
+    inside is not."""
+    grooves = {p.name: p for p in measure_texture(sinusoid_map(rows=64)[0], fractal_methods=())}
+    assert np.isnan(grooves["Str"].value) and "dominant direction" in parameter_note(grooves["Str"])
+    assert parameter_note(grooves["Sa"]) == ""
+    flat = {p.name: p for p in measure_texture(HeightMap(np.zeros((32, 32)), 1.0), fractal_methods=())}
+    assert np.isnan(flat["Ssk"].value) and "flat" in parameter_note(flat["Ssk"])
+    assert "outside [2, 3]" in parameter_note(Parameter("D_power-spectrum", 1.716, "", "power spectrum"))
+    assert parameter_note(Parameter("D_power-spectrum", 2.3, "", "power spectrum")) == ""

@@ -10,12 +10,10 @@ from skintopo.defaults import DEFAULT_SCHEDULER_TIMEOUT_S
 
 
 def run(args):
-    from tqdm import tqdm
-
     from skintopo.batch import BatchInterrupted, read_study, run_study
 
     total = len(read_study(args.study))  # validates before anything runs
-    bar = tqdm(desc="batch", unit="item", file=sys.stderr, disable=args.quiet)  # total grows with the compares
+    bar = shared.bar(quiet=args.quiet, desc="batch", unit="item", leave=True)  # total grows with the compares
 
     def progress(item, step, status):
         bar.update(1)

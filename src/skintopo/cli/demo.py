@@ -45,7 +45,7 @@ def run(args):
             shared.write_band_outputs(result_folder / band, result)
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
                   "height": made.description}
-        measurement = measure_height(made.height, options, albedo=made.albedo, source=source)
+        measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args))
         write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
                           evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels))
         segmentation = made.correction.segmentation

@@ -18,12 +18,15 @@ def run(args):
     options = shared.measure_options(args)
     path = Path(args.input)
     if path.is_dir() and not (path / "height.x3p").is_file():
-        measurement = measure_acquisition(path, options, shared.band_progress(args), on_note=lambda note: shared.say(args, f"note: {note}"))
+        measurement = measure_acquisition(path, options, shared.band_progress(args), on_note=lambda note: shared.say(args, f"note: {note}"),
+                                          step_progress=shared.step_progress(args))
     else:
         source = {"input": path.name, "kind": "height map", "height": "as given"}
-        measurement = measure_height(load_height_input(path, args.pixel_um), options, albedo=load_albedo_beside(path), source=source)
+        measurement = measure_height(load_height_input(path, args.pixel_um), options, albedo=load_albedo_beside(path), source=source,
+                                     progress=shared.step_progress(args))
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        write_measurement(staging, measurement, title=f"skintopo: {path.name}")
+        for _ in shared.step_progress(args, desc="write")(["report and tables"]):
+            write_measurement(staging, measurement, title=f"skintopo: {path.name}")
     if not args.quiet:
         print(f"{'region':<10} {'parameter':<24} {'value':>14} unit")
         for row in measurement.parameter_rows():

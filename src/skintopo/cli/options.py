@@ -64,10 +64,32 @@ non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
 percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
 
 
-def progress(iterable, *, quiet, desc, total=None):
+def bar(iterable=None, *, quiet, desc, unit, total=None, leave=False):
+    """A tqdm progress bar on stderr (none with -q). Its size is the terminal's, or 100 x 24
+    where the terminal reports none: tqdm draws nothing at all on a terminal of 0 rows (a
+    pseudo-terminal whose size was never set, as some consoles and ``docker exec`` give)."""
+    import shutil
+
     from tqdm import tqdm
 
-    return tqdm(iterable, desc=desc, total=total, disable=quiet, unit="band", file=sys.stderr, leave=False)
+    columns, lines = shutil.get_terminal_size((100, 24))
+    return tqdm(iterable, desc=desc, total=total, disable=quiet, unit=unit, file=sys.stderr, leave=leave, ncols=columns, nrows=lines)
+
+
+def progress(iterable, *, quiet, desc, total=None):
+    return bar(iterable, quiet=quiet, desc=desc, unit="band", total=total)
+
+
+def step_progress(args, desc="measure"):
+    """A progress bar over named steps (``progress`` of :func:`skintopo.pipeline.measure_height`)
+    that names the step running; on stderr, in a terminal or a pipe, none with -q."""
+    def wrap(steps):
+        steps_bar = bar(steps, quiet=args.quiet, desc=desc, unit="step")
+        for step in steps_bar:
+            steps_bar.set_postfix_str(step)
+            yield step
+
+    return wrap
 
 
 def say(args, message):

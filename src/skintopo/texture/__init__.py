@@ -133,6 +133,32 @@ def parameters_by_name(parameters):
     return {p.name: p.value for p in parameters}
 
 
+_UNDEFINED = {  # why a parameter has no value (NaN)
+    "Ssk": "undefined on a flat map (Sq = 0)",
+    "Sku": "undefined on a flat map (Sq = 0)",
+    "Sal": "the autocorrelation never falls to s = 0.2 in any direction within the field",
+    "Str": ("the autocorrelation does not fall to s = 0.2 within the field in every direction (a surface with one dominant "
+            "direction, such as parallel wrinkles, or a field smaller than its texture): the ratio is undefined"),
+    "Std": "no texture direction (a flat or isotropic map)",
+}
+
+
+def parameter_note(parameter: Parameter) -> str:
+    """Why a parameter has no value, or why its value is outside the range the quantity can
+    take ('' when neither): a fractal dimension of a surface lies in [2, 3] (ISO 25178-2 and
+    the estimators' definitions); a value outside means that the log-log points are not on
+    one line over the fitted scales (the surface is not self-affine there, e.g. wrinkles and
+    furrows dominate the spectrum), so it is no dimension of this surface."""
+    if not np.isfinite(parameter.value):
+        if parameter.name.startswith("D_"):
+            return "undefined on a flat map"
+        return _UNDEFINED.get(parameter.name, "undefined for this map")
+    if parameter.name.startswith("D_") and not 2.0 <= parameter.value <= 3.0:
+        return ("outside [2, 3], the range of a surface's dimension: the log-log points are not on a line over these scales "
+                "(the surface is not self-affine there), so this is not a dimension of this surface")
+    return ""
+
+
 def finite_or_none(value):
     """JSON-friendly value: None for NaN."""
     return None if value is None or (isinstance(value, float) and not np.isfinite(value)) else value
