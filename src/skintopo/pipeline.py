@@ -368,25 +368,34 @@ class CompareResult:
 
 def compare_results(baseline, follow_up, *, repeat=(), pixel_um=None, allow_scale=False, confidence=DEFAULT_DETECTION_CONFIDENCE,
                     segmentation: SegmentationOptions = SegmentationOptions(),
-                    wrinkles: WrinkleOptions = WrinkleOptions()) -> CompareResult:
+                    wrinkles: WrinkleOptions = WrinkleOptions(), progress=iter) -> CompareResult:
     """Compare two visits given as height files or result folders (see :mod:`skintopo.compare`).
 
     ``repeat``: repeat captures of the unchanged baseline skin (one path or several), each
     compared with the baseline as the follow-up is, give detection limits
     (:func:`skintopo.compare.detection_limits` at ``confidence``). The albedo of result
-    folders is carried by the same registration."""
+    folders is carried by the same registration. ``progress`` wraps the iteration over the
+    comparisons (named "follow-up", "repeat 1", ...)."""
     from skintopo.compare import compare_visits, detection_limits
     from skintopo.results import comparison_rows, load_albedo_beside, load_height_input, run_header
 
-    before, after = load_height_input(baseline, pixel_um), load_height_input(follow_up, pixel_um)
+    before = load_height_input(baseline, pixel_um)
     options, wrinkle_options = segmentation.as_kwargs(), wrinkles.as_kwargs()
-    comparison = compare_visits(before, after, allow_scale=allow_scale, segmentation_options=options, wrinkle_options=wrinkle_options,
-                                baseline_albedo=load_albedo_beside(baseline), follow_up_albedo=load_albedo_beside(follow_up))
     repeats = [repeat] if isinstance(repeat, (str, Path)) else list(repeat or ())
-    limits = None
-    if repeats:
-        limits = detection_limits([compare_visits(before, load_height_input(path, pixel_um), segmentation_options=options,
-                                                  wrinkle_options=wrinkle_options) for path in repeats], confidence=confidence)
+    others = {"follow-up": follow_up} | {f"repeat {k}": path for k, path in enumerate(repeats, start=1)}
+
+    def compared(path, **extra):
+        return compare_visits(before, load_height_input(path, pixel_um), segmentation_options=options, wrinkle_options=wrinkle_options, **extra)
+
+    comparisons = {}
+    for name in progress(list(others)):
+        if name == "follow-up":  # registered allowing a scale if asked; its albedo is carried along
+            comparisons[name] = compared(follow_up, allow_scale=allow_scale, baseline_albedo=load_albedo_beside(baseline),
+                                         follow_up_albedo=load_albedo_beside(follow_up))
+        else:
+            comparisons[name] = compared(others[name])
+    comparison = comparisons.pop("follow-up")
+    limits = detection_limits(list(comparisons.values()), confidence=confidence) if comparisons else None
     registration = comparison.registration
     summary = run_header("compare", baseline=Path(baseline).name, follow_up=Path(follow_up).name,
                          repeats=[Path(path).name for path in repeats],

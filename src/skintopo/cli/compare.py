@@ -17,7 +17,8 @@ def run(args):
     inputs = [args.baseline, args.follow_up, *args.repeat]
     check_output_folder(args.out, overwrite=args.overwrite, inputs=inputs)
     result = compare_results(args.baseline, args.follow_up, repeat=args.repeat, pixel_um=args.pixel_um, allow_scale=args.allow_scale,
-                             confidence=args.confidence / 100, segmentation=shared.segmentation_options(args), wrinkles=shared.wrinkle_options(args))
+                             confidence=args.confidence / 100, segmentation=shared.segmentation_options(args), wrinkles=shared.wrinkle_options(args),
+                             progress=shared.step_progress(args, desc="compare"))
     comparison, registration = result.comparison, result.comparison.registration
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=inputs) as staging:
         write_comparison(staging, comparison, result.rows, result.summary, result.spacing)

@@ -17,8 +17,11 @@ def run(args):
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
     height = load_height_input(args.input, args.pixel_um)
-    segmentation = segment_wrinkles(height, **shared.segmentation_options(args).as_kwargs())
-    measures = measure_wrinkles(height, segmentation, **shared.wrinkle_options(args).as_kwargs())
+    for step in shared.step_progress(args, desc="wrinkles")(["segmentation", "measures"]):
+        if step == "segmentation":
+            segmentation = segment_wrinkles(height, **shared.segmentation_options(args).as_kwargs())
+        else:
+            measures = measure_wrinkles(height, segmentation, **shared.wrinkle_options(args).as_kwargs())
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
         write_wrinkle_files(staging, measures, segmentation)
         (staging / "wrinkles_overlay.png").write_bytes(base64.b64decode(wrinkle_overlay_png(height, measures)))
