@@ -376,6 +376,7 @@ class WrinkleField:
     labels: np.ndarray
     extent: np.ndarray
     extent_labels: np.ndarray
+    nearest_core: np.ndarray
     settings: WrinkleSettings
 
     @property
@@ -404,7 +405,11 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
-    return WrinkleField(height, z, plateau, reference, around, segmentation.labels, extent, label(extent), settings)
+    # where wrinkles touch (crossing wrinkles, basins that meet), each point of their shared
+    # extent belongs to the wrinkle whose half-depth region is nearest
+    _, (rows, columns) = scipy.ndimage.distance_transform_edt(segmentation.labels == 0, return_indices=True)
+    return WrinkleField(height, z, plateau, reference, around, segmentation.labels, extent, label(extent), segmentation.labels[rows, columns],
+                        settings)
 
 
 @dataclass(frozen=True)
@@ -455,6 +460,8 @@ class WrinkleProperties:
         field, (dy, dx) = self._field, self._field.height.spacing
         core = field.labels == self.label
         whole = field.extent_labels == np.bincount(field.extent_labels[core]).argmax()
+        if np.count_nonzero(np.unique(field.labels[whole])) > 1:  # its extent touches another wrinkle's
+            whole &= field.nearest_core == self.label
         axis = max(self._region.axis_major_length * min(dy, dx), dx)
         core_width = np.count_nonzero(core) * dx * dy / axis
         extent_width = np.count_nonzero(whole) * dx * dy / axis
@@ -549,9 +556,17 @@ class WrinkleProperties:
         return cross_section_edges(self.frame, self._measured[1][:, on_line], self._field.settings.depth_fraction * line_depth)
 
     @cached_property
+    def _own_sections(self):
+        """The cross-sections whose centre is the wrinkle's (not inside a wrinkle it crosses,
+        nor outside the field): those its width and area are read from."""
+        frame, _, inside, _ = self._measured
+        own = inside[int(np.abs(frame.t).argmin()), self._line[0]]
+        return own if own.any() else np.ones_like(own)
+
+    @cached_property
     def _mean_width_um(self):
         lower, upper = self._edges
-        return float(np.mean(upper - lower))
+        return float(np.mean((upper - lower)[self._own_sections]))
 
     @property
     def mean_width_mm(self):
@@ -562,16 +577,22 @@ class WrinkleProperties:
     def half_depth_area_um2(self):
         """Area between the half-depth edges."""
         lower, upper = self._edges
-        return float(np.sum(upper - lower) * self.frame.step_um)
+        return float(np.sum((upper - lower)[self._own_sections]) * self.frame.step_um)
 
     @cached_property
     def volume_mm3(self):
         """The signed depth over the whole wrinkle (its ends below half depth included) and
         its walls (within a width plus the margin of the centre line; other wrinkles and the
-        field's outside left out), with the frame's area element."""
+        field's outside left out), with the frame's area element. Where the centre line runs
+        inside a wrinkle it crosses, the volume per length is interpolated from either side."""
         frame, depth, inside, _ = self._measured
         walls = (np.abs(frame.t)[:, None] <= self._mean_width_um + self._field.settings.margin_um) & inside
         step = frame.step_um
+        crossed = frame.sample(self._maps[4], order=0)[int(np.abs(frame.t).argmin())] > 0.5  # the line inside a wrinkle it crosses
+        if crossed.any() and not crossed.all():  # there, its volume per length is interpolated along s, as its depth is
+            per_s = np.where(walls, depth * frame.area_element, 0.0).sum(axis=0)
+            s = np.arange(per_s.size)
+            return float(np.interp(s, s[~crossed], per_s[~crossed]).sum() * step * step * 1e-9)
         return float((depth * frame.area_element)[walls].sum() * step * step * 1e-9)  # um^3 -> mm^3
 
     @cached_property
