@@ -38,6 +38,12 @@ exact geometry. In short:
 Ids 1..n follow the centroids, top to bottom then left to right. Field totals: count, total
 length, length-weighted mean depth, axial mean orientation and the wrinkle area fraction
 (half-depth area / measured area).
+
+API, as scikit-image's region properties: :func:`wrinkle_properties` gives one
+:class:`WrinkleProperties` per wrinkle, each measure a cached property computed when first
+read; :func:`wrinkle_table` gives chosen measures as columns (as ``regionprops_table``),
+computing only what they need; :func:`measure_wrinkles` gives every measure, the totals, the
+id image, the centre lines and the traces (what the commands and the report use).
 """
 
 from __future__ import annotations
