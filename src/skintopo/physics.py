@@ -344,7 +344,7 @@ def _check_inputs(images, lights):
 
 def physics_height(images, lights, spacing, *, mask=None, scattering=True, kernels=None, interreflection=True, highlights=True,
                    iterations=DEFAULT_ITERATIONS, tolerance=DEFAULT_TOLERANCE, radius_um=DEFAULT_RADIUS_UM,
-                   integrator=DEFAULT_INTEGRATOR, solver=DEFAULT_SOLVER) -> PhysicsResult:
+                   integrator=DEFAULT_INTEGRATOR, solver=DEFAULT_SOLVER, progress=iter) -> PhysicsResult:
     """Height that inverts scattering, interreflection and highlights (module notes).
 
     Parameters
@@ -370,6 +370,8 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         be estimated from the bands' ratios; known kernels remove that ambiguity.
     iterations : int
         At most this many passes of steps 2-4; ``tolerance`` stops earlier.
+    progress : callable, optional
+        Wraps the iteration over the iterations (each named "iteration k"; e.g. a progress bar).
     solver : str
         The photometric-stereo solver of step 4 (:func:`skintopo.normals.photometric_stereo`):
         ``"robust"`` leaves out an observation that a residual highlight makes clearly brighter
@@ -411,7 +413,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     specular = {"roughness": None, "scale": 0.0}
     changes, residuals = [], []
     previous = best = None
-    for _ in range(iterations):
+    for _ in progress([f"iteration {k}" for k in range(1, iterations + 1)]):  # ends early once converged
         spectra = np.stack([fourier.forward(direct[band] - specular_images) for band in REQUIRED_BANDS])
         shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, spectra))
         stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)

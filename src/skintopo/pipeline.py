@@ -226,8 +226,10 @@ def _resolved_method(method, present):
     return "white" if "white" in present else next(iter(present))
 
 
-def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), progress=iter) -> AcquisitionHeight:
-    """Reconstruct the bands ``options.height`` needs and return the height to measure."""
+def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), progress=iter, step_progress=iter) -> AcquisitionHeight:
+    """Reconstruct the bands ``options.height`` needs and return the height to measure.
+    ``progress`` wraps the iteration over the bands, ``step_progress`` that over the physics
+    height's iterations."""
     method = _resolved_method(options.height.method, acquisition.bands)
     spectral = method in CORRECTION_METHODS
     needed = REQUIRED_BANDS if spectral or method in (SPECULAR_FREE, PHYSICS) else (method,)
@@ -259,7 +261,8 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         kernels = optics_profile(name).scattering if name is not None else None
         physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
                                  acquisition.pixel_um, mask=acquisition.mask, kernels=kernels,
-                                 integrator=options.reconstruction.integrator, solver=options.reconstruction.solver)
+                                 integrator=options.reconstruction.integrator, solver=options.reconstruction.solver,
+                                 progress=step_progress)
         return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
                                  None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
@@ -320,7 +323,7 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
     acquisition = load_acquisition(path, pixel_um=options.reconstruction.pixel_um, saturation=options.reconstruction.saturation)
     if acquisition.pixel_um_assumed and on_note is not None:
         on_note(f"{Path(path).name} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
-    made = acquisition_height(acquisition, options, progress)
+    made = acquisition_height(acquisition, options, progress, step_progress)
     source = {"input": acquisition.source.name, "kind": "acquisition", "acquisition": acquisition_summary(acquisition),
               "height": made.description}
     if made.physics is not None:

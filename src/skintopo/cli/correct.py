@@ -21,7 +21,7 @@ def run(args):
     acquisition = shared.load(args, None)
     options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method, args.physics_kernels),
                              segmentation=shared.segmentation_options(args))
-    made = acquisition_height(acquisition, options, shared.band_progress(args))
+    made = acquisition_height(acquisition, options, shared.band_progress(args), shared.step_progress(args, desc="physics"))
     segmentation = made.correction.segmentation if made.correction else segment_wrinkles(made.height, **options.segmentation.as_kwargs())
     summary = run_header(
         "correct", acquisition=acquisition_summary(acquisition),

@@ -31,7 +31,7 @@ def run(args):
         write_synthetic_acquisition(staging / "acquisition", surface, bands, settings=settings, seed=args.seed, info=info)
         shared.say(args, f"simulated {args.preset}, {args.skin} skin, {args.size}x{args.size} px at 20 um ({time.perf_counter() - started:.1f} s)")
         acquisition = load_acquisition(staging / "acquisition")
-        made = acquisition_height(acquisition, options, shared.band_progress(args))
+        made = acquisition_height(acquisition, options, shared.band_progress(args), shared.step_progress(args, desc="physics"))
         heights = {band: result.height for band, result in made.bands.items()} | {"algorithm": made.height}
         true_depths = wrinkle_max_depths(surface.height, surface.wrinkle_labels)
         evaluations = {
