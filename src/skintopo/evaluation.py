@@ -25,6 +25,7 @@ from skintopo.height import height_normals
 from skintopo.heightmap import HeightMap
 from skintopo.registration import check_comparable, register_height_maps
 
+
 def height_difference(result: HeightMap, reference: HeightMap, mask=None):
     """result - reference with the least-squares plane of the difference removed (NaN where
     either is missing)."""

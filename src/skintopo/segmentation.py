@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.ndimage
+from scipy.cluster.hierarchy import DisjointSet
 from skimage.measure import label, regionprops
 from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
@@ -55,7 +56,7 @@ from skintopo.defaults import (
 )
 from skintopo.errors import SkinTopoError
 from skintopo.filters import areal_gaussian_filter, block_mean, coarse_areal_gaussian_filter, gaussian_bandpass, level, line_segment_closing
-from skintopo.heightmap import HeightMap
+from skintopo.heightmap import HeightMap, pixel_spacing
 
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
 REFERENCE_CUTOFF_UM = 2500.0  # local skin level for confirming candidates
@@ -263,13 +264,17 @@ def _confirmed_against_surrounding_skin(levelled, valid, basins, cores, candidat
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
 
 
+def margin_pixels(margin_um, spacing):
+    """A margin in whole pixels (at least one) of the finer pixel side."""
+    return max(1, int(round(margin_um / min(pixel_spacing(spacing)))))
+
+
 def skin_around(valid, wrinkles, spacing, margin_um=REFERENCE_MARGIN_UM):
     """The skin around wrinkles: the ``valid`` points outside the ``wrinkles`` (a mask of
     their whole extent) widened by ``margin_um``; None when that is less than 5% of the valid
     points (too little to set a skin level from). Used by the segmentation's confirmation and
     by the wrinkle measures (:mod:`skintopo.wrinkles`)."""
-    margin_px = max(1, int(round(margin_um / min(np.broadcast_to(spacing, 2)))))
-    skin = valid & ~scipy.ndimage.binary_dilation(wrinkles, iterations=margin_px)
+    skin = valid & ~scipy.ndimage.binary_dilation(wrinkles, iterations=margin_pixels(margin_um, spacing))
     return skin if skin.sum() >= 0.05 * valid.sum() else None
 
 
@@ -299,7 +304,7 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
     ``min_length_um`` (gaps included), every point of the region goes to the nearest chain;
     otherwise the label is left as it is."""
     labels = np.asarray(labels)
-    pixel = float(min(np.broadcast_to(spacing, 2)))
+    pixel = min(pixel_spacing(spacing))
     out = labels.copy()
     next_label = int(labels.max()) + 1
     for region in regionprops(labels):
@@ -343,12 +348,7 @@ def _chained_arms(arms, hubs, pixel, width):
     straight = np.cos(np.radians(CROSSING_MAX_BEND_DEG))
     reach = max(3.0, 2 * width / pixel)  # pixels over which an arm's direction at an end is taken
     neighbours = scipy.ndimage.convolve((arms > 0).astype(int), np.ones((3, 3), int), mode="constant") - 1
-    hub_root = list(range(int(hubs.max()) + 1))
-
-    def hub_of(h):
-        while hub_root[h] != h:
-            h = hub_root[h]
-        return h
+    crossings = DisjointSet(range(1, int(hubs.max()) + 1))  # junctions that are one crossing
 
     tips, points = {}, {}
     for a in range(1, int(arms.max()) + 1):
@@ -361,17 +361,9 @@ def _chained_arms(arms, hubs, pixel, width):
         at_hubs = {hub for _, hub in ends if hub}
         length = len(points[a]) * pixel
         if len(at_hubs) == 2 and length < 2 * width:
-            first, second = at_hubs
-            hub_root[hub_of(first)] = hub_of(second)  # one crossing
+            crossings.merge(*at_hubs)
         elif not (len(at_hubs) == 1 and len(ends) == 2 and length < width):  # a spur otherwise
             ids.append(a)
-    parent = {a: a for a in ids}
-
-    def root(a):
-        while parent[a] != a:
-            a = parent[a]
-        return a
-
     def outward(a, end):
         """Unit direction of arm ``a`` at its point ``end``, pointing out of the arm: from the
         arm's points half a width to three widths away (a skeleton's last pixels hook)."""
@@ -385,8 +377,8 @@ def _chained_arms(arms, hubs, pixel, width):
     for a in ids:
         for _, hub in tips[a]:
             if hub:
-                degree[hub_of(hub)] = degree.get(hub_of(hub), 0) + 1
-    ends = [(a, end, direction, hub_of(hub) if hub and degree[hub_of(hub)] > 1 else 0) for a in ids for end, hub in tips[a]
+                degree[crossings[hub]] = degree.get(crossings[hub], 0) + 1
+    ends = [(a, end, direction, crossings[hub] if hub and degree[crossings[hub]] > 1 else 0) for a in ids for end, hub in tips[a]
             if (direction := outward(a, end)) is not None]
     candidates = []
     for i, (a, tip_a, dir_a, hub_a) in enumerate(ends):
@@ -405,15 +397,13 @@ def _chained_arms(arms, hubs, pixel, width):
                     gap = gap / distance
                     if dir_a @ gap >= straight and -(dir_b @ gap) >= straight and float(dir_a @ dir_b) <= -straight:
                         candidates.append((float(dir_a @ dir_b) - 1.0 + distance * pixel / CROSSING_MAX_GAP_UM, i, j))
+    wrinkles = DisjointSet(ids)
     continued = set()  # ends already joined
     for _, i, j in sorted(candidates):
         if i not in continued and j not in continued:
-            parent[root(ends[i][0])] = root(ends[j][0])
+            wrinkles.merge(ends[i][0], ends[j][0])
             continued |= {i, j}
-    groups = {}
-    for a in ids:
-        groups.setdefault(root(a), []).append(a)
-    return list(groups.values())
+    return [sorted(chain) for chain in wrinkles.subsets()]
 
 
 def segmentation_from_labels(labels, spacing) -> WrinkleSegmentation:
@@ -422,7 +412,7 @@ def segmentation_from_labels(labels, spacing) -> WrinkleSegmentation:
     same skin (:func:`skintopo.evaluation.wrinkle_max_depths`). Each wrinkle's extent (its
     walls) is its region widened by its own mean width (area / major axis length)."""
     labels = np.asarray(labels, dtype=np.int32)
-    dy, dx = np.broadcast_to(np.asarray(spacing, float), 2)
+    dy, dx = pixel_spacing(spacing)
     widths = np.zeros(int(labels.max()) + 1)
     for region in regionprops(labels):
         widths[region.label] = region.area * dy * dx / max(region.axis_major_length * min(dy, dx), min(dy, dx))

@@ -63,7 +63,7 @@ from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTO
 from skintopo.errors import SkinTopoError
 from skintopo.filters import areal_gaussian_filter, line_segment_closing, polynomial_form
 from skintopo.heightmap import HeightMap
-from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation, skin_around, skin_level
+from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation, margin_pixels, skin_around, skin_level
 
 DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level, as the segmentation confirms candidates
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
@@ -387,7 +387,7 @@ class WrinkleField:
 
     @property
     def margin_px(self):
-        return max(1, int(round(self.settings.margin_um / min(self.height.spacing))))
+        return margin_pixels(self.settings.margin_um, self.height.spacing)
 
 
 def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings=WrinkleSettings()) -> WrinkleField:
