@@ -6,7 +6,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-latest bench docs clean
+.PHONY: demo test test-latest bench mutate docs clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,10 @@ docs: $(STAMP)
 
 bench: $(STAMP)
 	for script in bench/bench_*.py; do $(PY) $$script || exit 1; done
+
+# mutation testing of the core modules (mutmut, about 30 min): bench/results/mutation*.{json,md}
+mutate: $(STAMP)
+	$(PY) bench/mutation.py
 
 clean:
 	rm -rf $(VENV) .venv-latest demo-out build

@@ -1,6 +1,7 @@
 """Study-scale batch runs: local processes and Dask, killed workers, signals, resumption and fingerprints."""
 
 import fcntl
+import hashlib
 import json
 import os
 import shutil
@@ -250,6 +251,24 @@ def test_fingerprint_recomputes_exactly_the_affected_items(tmp_path, monkeypatch
     assert run() == (2, 3)  # V2 measured again and compared
     assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0))) == (5, 0)  # an option
     assert run(options=MeasureOptions(segmentation=SegmentationOptions(min_depth_um=30.0)), force=True) == (5, 0)
+
+
+def test_fingerprint_is_the_sha256_of_settings_names_sizes_and_contents(tmp_path):
+    visit = tmp_path / "visit"
+    (visit / "sub").mkdir(parents=True)
+    files = {"a.png": b"\x00\x01\x02", "sub/b.json": b'{"x": 1}'}
+    for name, content in files.items():
+        (visit / name).write_bytes(content)
+    settings = {"band": "red", "cutoff_um": 250.0}
+    direct = hashlib.sha256(json.dumps(settings, sort_keys=True).encode())  # the docstring's definition, summed directly
+    for name in sorted(files):
+        direct.update(f"visit/{name}:{len(files[name])}:".encode() + files[name])
+    assert skintopo.batch.fingerprint([visit], settings) == direct.hexdigest()
+    (visit / "a.png").write_bytes(b"\x00\x01\x03")  # one byte changed, same size
+    assert skintopo.batch.fingerprint([visit], settings) != direct.hexdigest()
+    (visit / "a.png").write_bytes(files["a.png"])
+    assert skintopo.batch.fingerprint([visit], settings) == direct.hexdigest()
+    assert skintopo.batch.fingerprint([visit], {**settings, "cutoff_um": 80.0}) != direct.hexdigest()
 
 
 def test_unreachable_scheduler_is_a_clear_error_within_the_timeout(tmp_path):

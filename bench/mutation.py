@@ -1,0 +1,195 @@
+"""Mutation testing of the core modules with mutmut (PyPI), each module against its own fast tests.
+
+Run with ``make mutate`` (or ``python bench/mutation.py [MODULE ...]``). For each module,
+``build/mutation/MODULE/`` gets a copy of ``src/`` and ``tests/`` and a ``pyproject.toml`` that
+tells mutmut to mutate that module only and to run the module's test folders without the slow
+tests; mutmut keeps its results there, so a second run retests only what changed.
+
+Mutation score = killed / (killed + survived + no test + suspicious), after the mutants judged
+equivalent (``bench/mutation_equivalent.toml``: a mutant that no input can tell from the
+original, with the reason) are set aside; a timed-out mutant counts as killed (it changed the
+behaviour: the tests would hang). Written: ``bench/results/mutation.json`` (counts per module,
+score, time) and ``bench/results/mutation-survivors.md`` (every surviving mutant's diff,
+equivalent ones with their reason).
+
+mutmut is run as a separate program from a virtual environment that has the project's
+dependencies but not skintopo itself (mutmut puts its mutated copy first on the import path; an
+editable install of the original would otherwise be what the tests import).
+"""
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+from _results import write_result
+
+ROOT = Path(__file__).resolve().parent.parent
+WORK = ROOT / "build" / "mutation"
+
+# module -> (the files mutmut mutates, the test folders run against them)
+CORE_MODULES = {
+    "normals": ("src/skintopo/normals.py", ["tests/normals"]),
+    "height": ("src/skintopo/height.py", ["tests/height"]),
+    "filters": ("src/skintopo/filters.py", ["tests/filters"]),
+    "correction": ("src/skintopo/correction.py", ["tests/correction"]),
+    "segmentation": ("src/skintopo/segmentation.py", ["tests/segmentation"]),
+    "wrinkles": ("src/skintopo/wrinkles.py", ["tests/wrinkles"]),
+    "compare": ("src/skintopo/compare.py", ["tests/compare"]),
+    "texture": ("src/skintopo/texture/*", ["tests/texture"]),
+    "acquisition": ("src/skintopo/acquisition/*", ["tests/acquisition"]),
+    "formats": ("src/skintopo/formats.py", ["tests/formats"]),
+    "batch": ("src/skintopo/batch.py", ["tests/batch"]),
+}
+
+# Run inside a module's work folder: every mutant's status and, unless killed, its diff.
+_LIST_MUTANTS = """
+import json
+from mutmut.configuration import config
+from mutmut.mutation.data import SourceFileMutationData
+from mutmut.mutation.diff_apply import get_diff_for_mutant
+from mutmut.stats import status_by_exit_code
+from mutmut.utils.file_utils import walk_mutatable_files
+rows = []
+for path in walk_mutatable_files():
+    data = SourceFileMutationData(path=path)
+    data.load()
+    for name, code in data.exit_code_by_key.items():
+        status = status_by_exit_code[code]
+        diff = "" if status in ("killed", "timeout") else get_diff_for_mutant(name, path=path)
+        rows.append({"name": name, "status": status, "diff": diff})
+print(json.dumps(rows))
+"""
+
+
+def _mutmut_python():
+    """The Python of build/mutation/.venv: the project's dependencies and mutmut, not skintopo."""
+    venv = WORK / ".venv"
+    python = venv / "bin" / "python"
+    if not python.exists():
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+        subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--upgrade", "pip"], check=True)
+        subprocess.run([str(python), "-m", "pip", "install", "--quiet", "-c", str(ROOT / "constraints.txt"),
+                        f"{ROOT}[test]", "mutmut==3.8.1"], check=True)
+        subprocess.run([str(python), "-m", "pip", "uninstall", "--quiet", "--yes", "skintopo"], check=True)
+    return python
+
+
+def _prepare(module):
+    """build/mutation/MODULE with today's src/ and tests/ and mutmut's settings for the module."""
+    pattern, test_folders = CORE_MODULES[module]
+    folder = WORK / module
+    folder.mkdir(parents=True, exist_ok=True)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for part in ("src", "tests"):
+        shutil.rmtree(folder / part, ignore_errors=True)
+        shutil.copytree(ROOT / part, folder / part, ignore=ignore)  # copy2: mtimes kept, so mutmut reuses results
+    pytest_options = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]
+    selection = [*test_folders, "-m", "not slow", "-p", "no:cacheprovider"]
+    (folder / "pyproject.toml").write_text(
+        "[tool.pytest.ini_options]\n"
+        f"markers = {json.dumps(pytest_options['markers'])}\n\n"
+        "[tool.mutmut]\n"
+        'source_paths = ["src/"]\n'
+        f"only_mutate = {json.dumps([pattern])}\n"
+        f"pytest_add_cli_args_test_selection = {json.dumps(selection)}\n")
+    return folder
+
+
+def _equivalent_mutants():
+    """{(function, removed line, added line): reason} from bench/mutation_equivalent.toml."""
+    entries = tomllib.loads((ROOT / "bench" / "mutation_equivalent.toml").read_text()).get("equivalent", [])
+    return {(e["function"], e["original"].strip(), e["mutant"].strip()): e["reason"] for e in entries}
+
+
+def _changed_lines(diff):
+    """The first removed and added lines of a unified diff (mutmut changes one expression)."""
+    lines = diff.splitlines()[2:]
+    removed = next((line[1:].strip() for line in lines if line.startswith("-")), "")
+    added = next((line[1:].strip() for line in lines if line.startswith("+")), "")
+    return removed, added
+
+
+def _function(name):
+    """skintopo.filters.x_level__mutmut_3 -> skintopo.filters.level (class methods: Class.method)."""
+    qualified = name.rsplit("__mutmut_", 1)[0]
+    module, _, function = qualified.rpartition(".")
+    function = function.replace("ǁ", ".").lstrip(".")
+    return f"{module}.{function[2:] if function.startswith('x_') else function}"
+
+
+def run_module(python, module, equivalent):
+    """Mutate one module, run its tests against every mutant; counts and the surviving mutants."""
+    folder = _prepare(module)
+    start = time.perf_counter()
+    with open(folder / "mutmut.log", "w") as log:
+        subprocess.run([str(python), "-m", "mutmut", "run", "--max-children", str(os.cpu_count() or 2)],
+                       cwd=folder, stdout=log, stderr=subprocess.STDOUT, check=True)
+    seconds = time.perf_counter() - start
+    listing = subprocess.run([str(python), "-c", _LIST_MUTANTS], cwd=folder, capture_output=True, text=True,
+                             check=True)
+    counts = {"killed": 0, "timeout": 0, "survived": 0, "no tests": 0, "suspicious": 0, "equivalent": 0}
+    survivors = []
+    for row in json.loads(listing.stdout):
+        status = row["status"]
+        if status not in ("killed", "timeout"):
+            function = _function(row["name"])
+            reason = equivalent.get((function, *_changed_lines(row["diff"])))
+            if reason is not None:
+                status = "equivalent"
+            survivors.append({**row, "function": function, "status": status, "reason": reason})
+        counts[status] = counts.get(status, 0) + 1
+    detected = counts["killed"] + counts["timeout"]
+    judged = detected + counts["survived"] + counts["no tests"] + counts["suspicious"]
+    return {"module": module, **counts, "score": detected / judged if judged else float("nan"),
+            "seconds": round(seconds, 1)}, survivors
+
+
+def _write_survivors(survivors_by_module):
+    lines = ["# Surviving mutants", "",
+             "Written by `bench/mutation.py` (`make mutate`). A mutant judged equivalent carries its reason;",
+             "every other one is a change that the module's fast tests do not notice.", ""]
+    for module, survivors in survivors_by_module.items():
+        lines += [f"## {module} ({len(survivors)})", ""]
+        for row in survivors:
+            reason = f": equivalent, {row['reason']}" if row["status"] == "equivalent" else ""
+            lines += [f"### `{row['name']}` ({row['status']}{reason})", "", "```diff", row["diff"], "```", ""]
+    (ROOT / "bench" / "results" / "mutation-survivors.md").write_text("\n".join(lines))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("modules", nargs="*", help=f"modules to mutate (default: all of {', '.join(CORE_MODULES)})")
+    args = parser.parse_args(argv)
+    unknown = sorted(set(args.modules) - set(CORE_MODULES))
+    if unknown:
+        parser.error(f"not a core module: {', '.join(unknown)}")
+    modules = args.modules or list(CORE_MODULES)
+    python = _mutmut_python()
+    equivalent = _equivalent_mutants()
+    rows, survivors_by_module = [], {}
+    start = time.perf_counter()
+    for module in modules:
+        row, survivors = run_module(python, module, equivalent)
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+        survivors_by_module[module] = survivors
+    total = {key: sum(row[key] for row in rows) for key in rows[0] if key not in ("module", "score", "seconds")}
+    detected = total["killed"] + total["timeout"]
+    judged = detected + total["survived"] + total["no tests"] + total["suspicious"]
+    result = {"tool": "mutmut 3.8.1", "command": "make mutate", "modules": rows,
+              "total": {**total, "score": detected / judged, "seconds": round(time.perf_counter() - start, 1)}}
+    if modules == list(CORE_MODULES):
+        _write_survivors(survivors_by_module)
+        write_result("mutation", result)
+    else:
+        print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
