@@ -1,4 +1,4 @@
-"""Accuracy evaluation against a reference: incomparable maps refused."""
+"""Accuracy evaluation against a reference: every figure on differences with a closed form; incomparable maps refused."""
 
 import numpy as np
 import pytest
@@ -14,3 +14,48 @@ def test_evaluation_refuses_incomparable_maps():
         evaluate_height(a, HeightMap(a.z, 20.0))
     with pytest.raises(SkinTopoError, match="do not overlap"):
         evaluate_height(a, HeightMap(np.random.default_rng(1).normal(size=(64, 64)), 10.0))
+
+
+def test_accuracy_figures_of_known_differences():
+    """Every figure of evaluation.json on differences with a closed form (no registration, so
+    the numbers are the formulas'): a tilted plane alone is no height error (the plane of the
+    difference is removed) but every normal turns by atan(slope): L2 = 2 sin(angle / 2); a
+    cosine of amplitude A over whole periods, even about the centre (so it has no plane
+    component), is an RMS error of A / sqrt(2); a quarter of
+    the field missing is a valid fraction of 0.75."""
+    rows, columns, pixel = 120, 160, 10.0
+    y, x = np.mgrid[:rows, :columns] * pixel
+    reference = HeightMap(np.zeros((rows, columns)), pixel)
+    slope = 0.05
+    tilted = evaluate_height(HeightMap(slope * x + 3.0, pixel), reference, register=False)
+    angle = np.arctan(slope)
+    assert tilted["rms_height_error_um"] == pytest.approx(0, abs=1e-9)
+    assert tilted["mean_angular_error_deg"] == pytest.approx(np.degrees(angle), rel=1e-9)
+    assert tilted["l2_normal_error"] == pytest.approx(2 * np.sin(angle / 2), rel=1e-9)
+    assert tilted["valid_fraction"] == 1.0 and tilted["shift_px"] == [0.0, 0.0]
+    amplitude, period = 2.0, columns * pixel / 4  # 4 whole periods across
+    wave = amplitude * np.cos(2 * np.pi * (x - (columns - 1) * pixel / 2) / period)
+    wavy = evaluate_height(HeightMap(wave, pixel), reference, register=False)
+    assert wavy["rms_height_error_um"] == pytest.approx(amplitude / np.sqrt(2), rel=1e-9)
+    z = np.where(y < rows * pixel * 0.75, wave, np.nan)
+    assert evaluate_height(HeightMap(z, pixel), reference, register=False)["valid_fraction"] == pytest.approx(0.75)
+
+
+def test_wrinkle_figures_of_a_known_wrinkle():
+    """A reconstruction whose wrinkle is 20% shallower everywhere (a scaled copy of the truth):
+    the max depth read where the reference's wrinkle is, 0.8 of the true one (relative
+    error 0.2), the true depth the wrinkle's geometry, and the RMS error inside the wrinkle
+    larger than over the field."""
+    from skintopo.synth import make_surface
+    from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures
+
+    wrinkle = Wrinkle(depth_um=100.0, width_um=500.0, length_um=3500.0, orientation_deg=20.0, shape="U")
+    surface = make_surface(SurfaceSpec(size_px=(200, 200), pixel_um=20.0, wrinkles=(wrinkle,), microrelief=False,
+                                       roughness_rms_um=0.0, form_radius_mm=None), seed=0)
+    shallower = HeightMap(0.8 * surface.height.z, surface.height.spacing)
+    report = evaluate_height(shallower, surface.height, wrinkle_labels=surface.wrinkle_labels, register=False)
+    true_depth = geometric_measures(wrinkle)["max_depth_um"]
+    assert report["wrinkle_max_depth_true_um"][0] == pytest.approx(true_depth, rel=0.03)
+    assert report["wrinkle_max_depth_um"][0] == pytest.approx(0.8 * true_depth, rel=0.03)
+    assert report["wrinkle_depth_error_relative"][0] == pytest.approx(0.2, abs=0.01)
+    assert report["rms_height_error_in_wrinkles_um"] > 2 * report["rms_height_error_um"]

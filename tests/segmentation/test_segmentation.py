@@ -46,3 +46,15 @@ def test_straight_valleys_find_narrow_shallow_wrinkles_the_band_pass_misses():
         assert found.count == 1 and segmentation_quality(found.mask, surface.wrinkle_labels > 0)["recall"] > 0.5
     for seed in range(3):
         assert segment_wrinkles(make_surface(preset_spec("flat-microrelief", size_px=320), seed=10 + seed).height).count == 0
+
+
+def test_segmentation_quality_of_overlapping_rectangles():
+    """demo's precision, recall and IoU on two rectangles counted by hand: predicted 10 x 20 =
+    200 pixels, true 10 x 30 = 300, overlap 10 x 10 = 100: precision 1/2, recall 1/3, IoU
+    100 / 400; nothing predicted: precision NaN (undefined), recall 0."""
+    predicted, truth = np.zeros((40, 60), bool), np.zeros((40, 60), bool)
+    predicted[5:15, 10:30] = True
+    truth[5:15, 20:50] = True
+    assert segmentation_quality(predicted, truth) == {"precision": 0.5, "recall": pytest.approx(1 / 3), "iou": 0.25}
+    empty = segmentation_quality(np.zeros_like(truth), truth)
+    assert np.isnan(empty["precision"]) and empty["recall"] == 0.0 and empty["iou"] == 0.0

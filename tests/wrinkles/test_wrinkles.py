@@ -11,7 +11,8 @@ from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
 from skintopo.wrinkles import centre_lines, measure_wrinkles, wrinkle_frame
 
-TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10}
+TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10,
+              "cross_section_mm2": 0.10}
 
 
 def relative_errors(surface, *, require_all=True):
@@ -147,5 +148,25 @@ def test_crossing_wrinkles_are_measured_each_on_its_own(angle, depths):
     assert segmentation.count == 2
     _, errors = relative_errors(surface)
     for measure, tolerance in TOLERANCES.items():
-        allowed = 0.25 if measure == "volume_mm3" else tolerance
+        allowed = 0.25 if measure in ("volume_mm3", "cross_section_mm2") else tolerance
         assert all(abs(e[measure]) <= allowed for e in errors), (measure, [e[measure] for e in errors])
+
+
+def test_field_totals_of_two_known_wrinkles():
+    """The totals of wrinkles.json against the two wrinkles' geometry: count, total length (sum of
+    the exact lengths), length-weighted mean depth, the axial mean orientation (175 and 7
+    degrees average across 0, to 1.5 degrees weighted by length, not to 91), and the
+    area fraction of the half-depth regions (the simulator's exact labels)."""
+    wrinkles = (Wrinkle(depth_um=150.0, width_um=500.0, length_um=4000.0, orientation_deg=175.0, centre_um=(0.0, -1200.0), shape="U"),
+                Wrinkle(depth_um=90.0, width_um=400.0, length_um=3000.0, orientation_deg=7.0, centre_um=(0.0, 1200.0), shape="G"))
+    spec = SurfaceSpec(size_px=(300, 300), pixel_um=20.0, wrinkles=wrinkles, microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
+    surface = make_surface(spec, seed=0)
+    totals = measure_wrinkles(surface.height, segment_wrinkles(surface.height)).totals
+    truth = [geometric_measures(w) for w in wrinkles]
+    lengths = np.array([t["length_mm"] for t in truth])
+    assert totals["count"] == 2
+    assert totals["total_length_mm"] == pytest.approx(lengths.sum(), rel=0.05)
+    assert totals["mean_depth_um"] == pytest.approx((lengths * [t["mean_depth_um"] for t in truth]).sum() / lengths.sum(), rel=0.05)
+    weighted = np.degrees(np.arctan2((lengths * np.sin(np.radians([-10.0, 14.0]))).sum(), (lengths * np.cos(np.radians([-10.0, 14.0]))).sum())) / 2
+    assert (totals["mean_orientation_deg"] - weighted + 90) % 180 - 90 == pytest.approx(0, abs=1.5)
+    assert totals["area_fraction"] == pytest.approx((surface.wrinkle_labels > 0).mean(), rel=0.10)
