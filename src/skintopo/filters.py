@@ -348,7 +348,7 @@ def extract_profile(height: HeightMap, start_um, end_um, width_um=0.0):
     for point in (start, end):
         if not (0 <= point[0] <= (columns - 1) * dx and 0 <= point[1] <= (rows - 1) * dy):
             raise SkinTopoError(
-                f"profile end point {tuple(point)} um lies outside the map (0..{(columns - 1) * dx:g} x 0..{(rows - 1) * dy:g} um)"
+                f"profile end point ({point[0]:g}, {point[1]:g}) um lies outside the map (0..{(columns - 1) * dx:g} x 0..{(rows - 1) * dy:g} um)"
             )
     length = float(np.hypot(*(end - start)))
     step = min(dx, dy)

@@ -11,12 +11,15 @@ from skintopo.filters import (
     areal_gaussian_filter,
     block_mean,
     extract_profile,
+    gaussian_bandpass,
     gaussian_smooth,
     gaussian_transmission,
     level,
     line_segment_closing,
     line_segment_footprint,
     polynomial_form,
+    profile_gaussian_filter,
+    sphere_fit,
 )
 from skintopo.heightmap import HeightMap
 from skintopo.synth import make_surface, preset_spec
@@ -30,11 +33,13 @@ def sinusoid_amplitude(values, x, wavelength):
 
 @pytest.mark.parametrize("sigmas", [(3.0, 1.5), (12.0, 20.0), (25.0, 9.0)])  # direct path, then the FFT path (>= 8 px)
 def test_gaussian_smooth_matches_scipy_with_different_row_and_column_widths(sigmas):
+    """Zero outside the field (scipy's mode "constant"), data up to the border, a stack of two."""
     rng = np.random.default_rng(2)
-    image = np.zeros((90, 130))
-    image[20:70, 30:100] = rng.normal(size=(50, 70))  # zero margins: the same as zero outside the field
-    expected = scipy.ndimage.gaussian_filter(image, sigmas, mode="constant", truncate=6.0)
-    np.testing.assert_allclose(gaussian_smooth(image[None], sigmas)[0], expected, atol=1e-4 * np.abs(expected).max())  # the direct path truncates at 4 sigma
+    images = rng.normal(size=(2, 90, 130))
+    smoothed = gaussian_smooth(images, sigmas)
+    for image, result in zip(images, smoothed):
+        expected = scipy.ndimage.gaussian_filter(image, sigmas, mode="constant", truncate=6.0)
+        np.testing.assert_allclose(result, expected, atol=1e-4 * np.abs(expected).max())  # the direct path truncates at 4 sigma
 
 
 def test_coarse_gaussian_regression_matches_the_full_filter_where_wrinkles_are_masked():
@@ -77,6 +82,27 @@ def test_plane_passes_unchanged_including_edges_and_masks():
         assert np.nanmax(np.abs(low - z)) < 1e-9
 
 
+def test_a_single_valid_row_is_filtered_by_the_weighted_mean_and_reaches_five_sigmas():
+    """Where the valid points lie on one row, the local plane has no y-slope to fit and the
+    filter falls back to the weighted mean (zeroth order): along the row, the 1-D Gaussian,
+    whose transmission of a cosine is exp(-pi (alpha lambda_c / lambda)^2); across it, the
+    row's value at every row within reach. Reach (the weight above 1e-6 of its largest):
+    exp(-d^2 / 2 sigma^2) > 1e-6, i.e. d < 5.26 sigma."""
+    cutoff, pixel = 53.36, 1.0  # sigma = 10.0 px: the FFT path
+    sigma = cutoff * np.sqrt(np.log(2) / np.pi) / np.sqrt(2 * np.pi) / pixel
+    wavelength = 2 * cutoff
+    x = np.arange(600) * pixel
+    z = np.full((70, 600), np.nan)
+    z[5] = 3.0 * np.cos(2 * np.pi * x / wavelength) + 7.0
+    low = areal_gaussian_filter(z, pixel, cutoff)
+    interior = slice(150, 450)
+    expected = 3.0 * gaussian_transmission(wavelength, cutoff) * np.cos(2 * np.pi * x[interior] / wavelength) + 7.0
+    reached = [row for row in range(70) if abs(row - 5) < 5.0 * sigma]
+    for row in reached:
+        np.testing.assert_allclose(low[row, interior], expected, atol=3e-3)
+    assert np.isnan(low[[row for row in range(70) if abs(row - 5) > 5.5 * sigma]]).all()
+
+
 def test_polynomial_form_removal():
     rows, columns = np.mgrid[:40, :50]
     form = 0.01 * (rows - 20) ** 2 + 0.3 * columns
@@ -87,16 +113,37 @@ def test_polynomial_form_removal():
         polynomial_form(np.full((1, 2), 1.0), 1.0, 2)
 
 
-@pytest.mark.parametrize("order", [1, 2, 3])
+@pytest.mark.parametrize("order", [0, 1, 2, 3])
 def test_polynomial_form_is_the_least_squares_fit_over_the_valid_points(order):
+    """Against NumPy's QR least squares over the valid points: the mask's points that are also
+    finite (the mask and the missing points differ), and every point when all are valid."""
     rng = np.random.default_rng(order)
-    z = rng.standard_normal((30, 45)) + np.mgrid[:30, :45][0] * 0.1
+    z = rng.standard_normal((30, 45)) + np.mgrid[:30, :45][0] * 0.1 + 0.02 * np.mgrid[:30, :45][1] ** 2
     mask = rng.random(z.shape) > 0.3
-    z[~mask] = np.nan
+    z_missing = z.copy()
+    z_missing[rng.random(z.shape) > 0.9] = np.nan
     v, u = np.meshgrid(np.linspace(-1, 1, 30), np.linspace(-1, 1, 45), indexing="ij")
     basis = np.stack([u**i * v**j for i in range(order + 1) for j in range(order + 1 - i)], axis=-1)
-    coefficients, *_ = np.linalg.lstsq(basis[mask], z[mask], rcond=None)  # independent: QR-based lstsq
-    np.testing.assert_allclose(polynomial_form(z, 1.0, order, mask), basis @ coefficients, atol=1e-10)
+    for values, valid in ((z_missing, mask), (z, np.ones_like(mask))):
+        used = valid & np.isfinite(values)
+        coefficients, *_ = np.linalg.lstsq(basis[used], values[used], rcond=None)  # independent: QR-based lstsq
+        np.testing.assert_allclose(polynomial_form(values, 1.0, order, valid), basis @ coefficients, atol=1e-10)
+    if order == 1:  # the default is the plane, with the mask and the missing points taken as they are
+        np.testing.assert_allclose(polynomial_form(z_missing, 1.0, mask=mask), polynomial_form(z_missing, 1.0, 1, mask), atol=0)
+        used = np.isfinite(z_missing)
+        coefficients, *_ = np.linalg.lstsq(basis[used], z_missing[used], rcond=None)
+        np.testing.assert_allclose(polynomial_form(z_missing, 1.0), basis @ coefficients, atol=1e-10)
+
+
+def test_polynomial_form_needs_as_many_points_as_terms():
+    """A plane has 3 terms: 3 points not on a line fix it exactly; 2 are refused."""
+    z = np.full((4, 5), np.nan)
+    z[0, 0], z[3, 0], z[0, 4] = 1.0, 4.0, 9.0
+    expected = 1.0 + 1.0 * np.mgrid[:4, :5][0] + 2.0 * np.mgrid[:4, :5][1]
+    np.testing.assert_allclose(polynomial_form(z, 1.0), expected, atol=1e-9)
+    z[3, 0] = np.nan
+    with pytest.raises(SkinTopoError, match="order 1 needs at least 3 valid points, got 2"):
+        polynomial_form(z, 1.0)
 
 
 def test_line_segment_closing_fills_valleys_narrower_than_the_segment_only():
@@ -158,8 +205,35 @@ def test_profile_extraction_across_a_ramp():
     height = HeightMap(2.0 * columns * 5.0, 5.0)  # z = 2 x (um)
     distance, z = extract_profile(height, (10.0, 100.0), (200.0, 100.0), width_um=20.0)
     np.testing.assert_allclose(z, 2 * (10.0 + distance), atol=1e-9)
-    with pytest.raises(SkinTopoError, match="outside the map"):
+    np.testing.assert_allclose(np.diff(distance), 5.0)
+    assert distance[-1] == pytest.approx(190.0)
+    with pytest.raises(SkinTopoError, match=r"end point \(1000, 0\) um lies outside the map \(0..295 x 0..245 um\)"):
         extract_profile(height, (0.0, 0.0), (1000.0, 0.0))
+    with pytest.raises(SkinTopoError, match=r"\(0, 250\) um lies outside"):
+        extract_profile(height, (0.0, 250.0), (0.0, 0.0))
+    distance, z = extract_profile(height, (0.0, 0.0), (295.0, 245.0))  # corner to corner: inside
+    assert distance[-1] == pytest.approx(np.hypot(295.0, 245.0)) and z[-1] == pytest.approx(590.0)
+
+
+@pytest.mark.parametrize("vertical", [False, True])
+def test_profile_band_averages_across_the_line(vertical):
+    """Along the floor of a V valley z = 3 |d| (d the distance from a grid line; bilinear
+    interpolation is exact there), the band of width w averages 3 |o| over its offsets o
+    (one per pixel spacing across the line, from -w/2 to w/2): the line alone reads 0. A
+    profile of zero length reads the band across the x axis."""
+    pixel, width = 4.0, 40.0
+    r, c = np.mgrid[:60, :70] * pixel
+    d = (c - 30 * pixel) if vertical else (r - 25 * pixel)
+    height = HeightMap(3.0 * np.abs(d), pixel)
+    start, end = ((120.0, 20.0), (120.0, 200.0)) if vertical else ((20.0, 100.0), (240.0, 100.0))
+    offsets = np.linspace(-width / 2, width / 2, 11)
+    _, floor = extract_profile(height, start, end, width_um=0.0)
+    _, band = extract_profile(height, start, end, width_um=width)
+    np.testing.assert_allclose(floor, 0.0, atol=1e-9)
+    np.testing.assert_allclose(band, 3.0 * np.abs(offsets).mean(), atol=1e-9)
+    if not vertical:
+        _, point = extract_profile(height, (60.0, 100.0), (60.0, 100.0), width_um=width)
+        np.testing.assert_allclose(point, 3.0 * np.abs(offsets).mean(), atol=1e-9)
 
 
 def test_gaussian_highpass_keeps_roughness_and_removes_form():
@@ -182,3 +256,58 @@ def test_block_mean_against_a_padded_reshape():
         padded[: shape[0], : shape[1]] = image
         expected = padded.reshape(rows, factor, columns, factor).mean(axis=(1, 3))
         np.testing.assert_allclose(block_mean(image, factor), expected, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("factor", [0.5, 1.0, 3.0])
+def test_profile_filter_transmission_ends_and_gaps(factor):
+    """ISO 16610-21 in one dimension: a sinusoid is transmitted by exp(-pi (alpha lambda_c /
+    lambda)^2) (50% at lambda_c); a straight line passes unchanged up to both ends and across a
+    gap (first-order regression); NaN points are left out and a lone point keeps its value."""
+    pixel, cutoff = 2.0, 400.0
+    x = np.arange(3000) * pixel
+    wavelength = cutoff * factor
+    low = profile_gaussian_filter(10 * np.sin(2 * np.pi * x / wavelength), pixel, cutoff)
+    interior = slice(1000, 2000)
+    assert sinusoid_amplitude(low[interior], x[interior], wavelength) / 10 == pytest.approx(
+        gaussian_transmission(wavelength, cutoff), abs=0.005 * max(gaussian_transmission(wavelength, cutoff), 0.01) + 1e-4)
+    line = 0.3 * x - 5.0
+    line[1200:1300] = np.nan
+    np.testing.assert_allclose(profile_gaussian_filter(line, pixel, cutoff), 0.3 * x - 5.0, atol=1e-8)
+    lone = np.full(200, np.nan)
+    lone[50] = 4.0
+    assert profile_gaussian_filter(lone, pixel, cutoff)[50] == pytest.approx(4.0)
+    with pytest.raises(SkinTopoError, match="cut-off must be positive, got 0 um"):
+        profile_gaussian_filter(line, pixel, 0)
+
+
+def test_band_pass_transmission_is_the_difference_of_the_two_low_passes():
+    """Band-pass (lambda_s, lambda_c) of a sinusoid: T(lambda; lambda_s) - T(lambda; lambda_c),
+    about 0.94 - 0.06 at the geometric mean of the cut-offs here; a plane is removed."""
+    pixel, short, long = 5.0, 250.0, 2500.0
+    wavelength = np.sqrt(short * long)
+    x = np.arange(1600) * pixel
+    z = 4 * np.sin(2 * np.pi * x / wavelength)[None, :] * np.ones((6, 1)) + 0.01 * x[None, :]
+    band = gaussian_bandpass(HeightMap(z, pixel), short, long).z
+    interior = slice(500, 1100)
+    expected = gaussian_transmission(wavelength, short) - gaussian_transmission(wavelength, long)
+    assert sinusoid_amplitude(band[3, interior], x[interior], wavelength) / 4 == pytest.approx(expected, abs=0.005)
+    with pytest.raises(SkinTopoError, match="must be below the long one"):
+        gaussian_bandpass(HeightMap(z, pixel), long, short)
+
+
+def test_sphere_fit_of_a_sampled_cap():
+    """A cap of a sphere of radius 80 mm centred off the optical axis, sampled on a 60 x 80 grid
+    of 50 x 40 um pixels (x right, y up from the map's centre, height toward the camera):
+    radius and centre exact to 1e-6 relative; fewer than 4 points refused."""
+    radius, centre = 80000.0, np.array([300.0, -200.0, -79000.0])
+    rows, columns, dy, dx = 60, 80, 50.0, 40.0
+    r, c = np.mgrid[:rows, :columns]
+    x, y = (c - (columns - 1) / 2) * dx, ((rows - 1) / 2 - r) * dy
+    z = centre[2] + np.sqrt(radius**2 - (x - centre[0]) ** 2 - (y - centre[1]) ** 2)
+    found_radius, found_centre = sphere_fit(HeightMap(z, (dy, dx)))
+    assert found_radius == pytest.approx(radius, rel=1e-6)
+    np.testing.assert_allclose(found_centre, centre, rtol=0, atol=1e-6 * radius)
+    sparse = np.full(z.shape, np.nan)
+    sparse[0, :3] = z[0, :3]
+    with pytest.raises(SkinTopoError, match="at least 4 valid points, got 3"):
+        sphere_fit(HeightMap(sparse, (dy, dx)))
