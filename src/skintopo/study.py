@@ -6,7 +6,10 @@ between subjects), over the subjects that have both visits:
 
 - the paired change d_i = follow-up_i - baseline_i (``changes.csv``, measured on the
   registered overlap of the two visits);
-- mean change with its 95% confidence interval, mean +- t_(0.975, n-1) s / sqrt(n);
+- mean change with its 95% confidence interval, mean +- t_(0.975, n-1) s / sqrt(n), and as a
+  per cent of the mean baseline's magnitude, 100 mean(d) / |mean(baseline)| over the same
+  subjects (so that + is an increase, as ``change_percent`` of ``changes.csv``, also for a
+  parameter whose values are negative such as Ssk);
 - the paired t test (``scipy.stats.ttest_1samp`` of d against 0, which is
   ``scipy.stats.ttest_rel`` of the two visits) and the Wilcoxon signed-rank test
   (``scipy.stats.wilcoxon``, two-sided; undefined when every d_i is 0);
@@ -74,12 +77,12 @@ def study_statistics(changes, repeats, units, visits=None):
     rows = []
     for (region, baseline_visit, visit, parameter), group in changes.groupby(["region", "baseline_visit", "visit", "parameter"], sort=True):
         d = group.change.to_numpy(dtype=float)
-        d = d[np.isfinite(d)]
+        finite = np.isfinite(d)
+        d, baseline = d[finite], group.baseline.to_numpy(dtype=float)[finite]
         n = d.size
         row = {"region": region, "baseline_visit": baseline_visit, "visit": visit, "parameter": parameter, "unit": units.get(parameter, ""),
                "subjects": n, "mean_change": float(np.mean(d)) if n else np.nan}
-        baseline = group.baseline.to_numpy(dtype=float)
-        row["mean_change_percent"] = float(100 * np.mean(d) / np.mean(baseline)) if n and np.mean(baseline) != 0 else np.nan
+        row["mean_change_percent"] = float(100 * np.mean(d) / abs(np.mean(baseline))) if n and np.mean(baseline) != 0 else np.nan
         if n >= 2:
             half = stats.t.ppf(0.975, n - 1) * np.std(d, ddof=1) / np.sqrt(n)
             row["ci95_low"], row["ci95_high"] = row["mean_change"] - half, row["mean_change"] + half

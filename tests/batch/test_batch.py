@@ -114,6 +114,15 @@ def test_local_processes(study, local_run):
     depth = t["changes.csv"]
     s01 = depth[(depth.subject == "S01") & (depth.parameter == "wrinkles.mean_depth_um")]
     assert (s01.change_percent < 0).all()  # the wrinkles were made shallower at every visit
+    np.testing.assert_allclose(depth.change, depth.follow_up - depth.baseline, rtol=1e-12)
+    np.testing.assert_allclose(depth.change_percent, 100 * depth.change / depth.baseline.abs(), rtol=1e-12)  # + = an increase
+    for row in t["results.csv"].itertuples(index=False):  # every number of results.csv is its visit's measure
+        item = json.loads((out / "items" / row.subject / row.region / row.visit / "parameters.json").read_text())
+        expected = {p["name"]: p["value"] for p in item["parameters"] if p["region"] == "field"}
+        expected.update({f"wrinkles.{k}": v for k, v in item["summary"]["wrinkle_totals"].items() if k != "mean_orientation_deg"})
+        values = dict(zip(t["results.csv"].columns, row))
+        for name, value in expected.items():
+            assert values[name] == pytest.approx(value, rel=1e-12, nan_ok=True), (row.subject, row.visit, name)
     # privacy: no absolute path of the study (or of anything else under it) in any output
     root = str(study.parent)
     for file in out.rglob("*"):

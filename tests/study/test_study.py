@@ -40,6 +40,18 @@ def test_study_statistics_against_scipy():
     assert row.unit == "um"
 
 
+def test_mean_change_percent_of_a_negative_parameter_and_a_missing_change():
+    """Ssk from -0.8 to -0.6 on average is an increase: +25% (per cent of the baseline's
+    magnitude, as change_percent of changes.csv); a subject whose change is missing (NaN) is
+    left out of the mean baseline too."""
+    rows = [("S1", -1.0, -0.7), ("S2", -0.6, -0.5), ("S3", -3.0, np.nan)]
+    changes = pd.DataFrame([{"subject": s, "region": "fh", "baseline_visit": "V1", "visit": "V2", "parameter": "Ssk",
+                             "baseline": b, "follow_up": f, "change": f - b} for s, b, f in rows])
+    row = study_statistics(changes, pd.DataFrame(), {"Ssk": ""}, {("fh", "V1"): {"S1", "S2", "S3"}, ("fh", "V2"): {"S1", "S2", "S3"}}).iloc[0]
+    assert row.subjects == 2 and row.mean_change == pytest.approx(0.2)
+    assert row.mean_change_percent == pytest.approx(100 * 0.2 / 0.8)
+
+
 def test_study_validation_reports_every_problem(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "study.csv").write_text("subject,visit,region,acquisition,baseline\nS1,V1,fh,a,\nS1,V1,fh,a,\nS2,V2,fh,missing,V1\n,V3,fh,a,\n")
