@@ -226,3 +226,86 @@ def test_residual_is_the_rms_over_the_observations_used():
         g, *_ = np.linalg.lstsq(lights[keep], images[keep, r, c].astype(float), rcond=None)
         expected = np.sqrt(np.mean((images[keep, r, c] - lights[keep] @ g) ** 2))
         assert result.residual[r, c] == pytest.approx(expected, rel=1e-3)
+
+
+def test_observations_marked_by_exclude_or_highlights_are_left_out():
+    """Observations named by ``exclude`` (from the start) or ``highlights`` (other bands'
+    evidence) are never used, whatever their value: here garbage, and the normals are exact."""
+    z, p, q = plane_and_bump(shape=(30, 40))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = np.array([four_lights()[i] for i in range(4)] + [[0.0, 0.0, 1.0]])
+    clean = render_lambertian(truth, 0.5, lights).astype(np.float32)
+    for name, light, rows in (("exclude", 0, slice(0, 10)), ("highlights", 2, slice(10, 20))):
+        marks = np.zeros(clean.shape, bool)
+        marks[light, rows] = True
+        images = clean.copy()
+        images[marks] = 3.0 * images[marks] + 5.0
+        result = photometric_stereo(images, lights, **{name: marks})
+        assert not result.used[marks].any() and result.used[~marks].all()
+        assert np.nanmax(angular_error_degrees(result.normals, truth)) < 0.1
+        np.testing.assert_allclose(result.albedo, 0.5, rtol=1e-4)
+
+
+def test_shadow_threshold_is_a_fraction_of_the_albedo():
+    """Albedo 4: an observation at 0.1 (a cast shadow lit by 2.5% stray light) is under 5% of
+    the albedo (0.2) and left out; at albedo 1 the same 0.1 would be kept (the rule scales with
+    the pixel's albedo, not with an absolute level)."""
+    z, p, q = plane_and_bump(shape=(20, 20))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = np.array([four_lights()[i] for i in range(4)] + [[0.0, 0.0, 1.0]])
+    images = render_lambertian(truth, 4.0, lights).astype(np.float32)
+    images[1] = 0.1
+    result = photometric_stereo(images, lights)
+    assert not result.used[1].any() and (result.lights_used == 4).all()
+    assert np.nanmax(angular_error_degrees(result.normals, truth)) < 0.1
+    dim = render_lambertian(truth, 1.0, lights).astype(np.float32)
+    dim[1] = 0.1
+    assert photometric_stereo(dim, lights).used[1].all()
+
+
+def test_angular_error_normalises_its_inputs():
+    """30 degrees between (1, 0, 0) x 3 and (cos 30, sin 30, 0) x 0.5; 0 (not NaN) between a
+    normal and itself even where rounding puts the dot product above 1."""
+    a = np.array([[3.0, 0.0, 0.0]])
+    b = 0.5 * np.array([[np.cos(np.radians(30)), np.sin(np.radians(30)), 0.0]])
+    assert angular_error_degrees(a, b)[0] == pytest.approx(30.0, rel=1e-12)
+    normals = np.random.default_rng(3).normal(size=(2000, 3))
+    assert np.all(angular_error_degrees(normals, normals) < 1e-5)
+    assert np.isnan(angular_error_degrees(np.array([[0.0, 0.0, np.nan]]), a)).all()
+
+
+def test_robust_solver_with_four_lights_drops_a_clear_highlight_only():
+    """4 lights: any 3 fit exactly, so the removals tie and the brightest is dropped when it is
+    more than 0.3 albedo above what the other three predict: +0.5 on an albedo of 0.5 is
+    dropped (exact normals from the other 3), +0.1 is kept (all 4 used)."""
+    z, p, q = plane_and_bump(shape=(20, 30))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = four_lights()
+    images = render_lambertian(truth, 0.5, lights).astype(np.float32)
+    images[1, :10] += 0.5
+    images[1, 10:] += 0.1
+    robust = photometric_stereo(images, lights, solver="robust")
+    assert not robust.used[1, :10].any() and robust.used[:, 10:].all()
+    assert np.nanmax(angular_error_degrees(robust.normals, truth)[:10]) < 0.1
+
+
+def test_robust_solver_with_many_lights_drops_every_outlier():
+    """20 lights, two highlights and one cast shadow per pixel in the lower half: the passes
+    drop the worst-fitting observations until the residual is under 2% of the albedo; the
+    normals come back exact and exactly the corrupted observations are left out."""
+    z, p, q = plane_and_bump(shape=(16, 20))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    slant = np.radians(np.repeat([20.0, 35.0, 50.0, 60.0], 5))
+    tilt = np.radians(np.arange(20) * 360.0 / 20 + np.repeat([0.0, 9.0, 4.0, 13.0], 5))
+    lights = np.stack([np.sin(slant) * np.cos(tilt), np.sin(slant) * np.sin(tilt), np.cos(slant)], axis=1)
+    images = render_lambertian(truth, 0.8, lights).astype(np.float32)
+    corrupted = np.zeros(images.shape, bool)
+    corrupted[[3, 11], 8:] = True
+    images[[3, 11], 8:] += 0.6
+    corrupted[17, 8:] = True
+    images[17, 8:] *= 0.3
+    plain = photometric_stereo(images, lights, shadow_fraction=0.0)
+    robust = photometric_stereo(images, lights, solver="robust", shadow_fraction=0.0)
+    assert np.nanmean(angular_error_degrees(plain.normals, truth)[8:]) > 2
+    assert np.nanmax(angular_error_degrees(robust.normals, truth)) < 0.1
+    np.testing.assert_array_equal(robust.used, ~corrupted)
