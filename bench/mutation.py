@@ -26,6 +26,7 @@ import argparse
 import fnmatch
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -108,9 +109,22 @@ def _prepare(module):
 
 
 def _equivalent_mutants():
-    """{(function, removed line, added line): reason} from bench/mutation_equivalent.toml."""
-    entries = tomllib.loads((ROOT / "bench" / "mutation_equivalent.toml").read_text()).get("equivalent", [])
-    return {(e["function"], e["original"].strip(), e["mutant"].strip()): e["reason"] for e in entries}
+    """The judgements of bench/mutation_equivalent.toml: a function (function, original line,
+    mutated line) -> reason or None, from single mutants and from rules (a regular expression
+    "pattern": a mutant is covered when the two lines differ only inside its matches, i.e.
+    are equal once the matches are removed from both)."""
+    judged = tomllib.loads((ROOT / "bench" / "mutation_equivalent.toml").read_text())
+    single = {(e["function"], e["original"].strip(), e["mutant"].strip()): e["reason"] for e in judged.get("equivalent", [])}
+    rules = [(re.compile(rule["pattern"]), rule["reason"]) for rule in judged.get("rule", [])]
+
+    def reason(function, original, mutant):
+        if (function, original, mutant) in single:
+            return single[function, original, mutant]
+        def without(pattern, line):  # the line without the pattern's matches, blanks and trailing commas
+            return re.sub(r"\s+", "", pattern.sub("", line)).replace(",)", ")")
+        return next((text for pattern, text in rules
+                     if pattern.search(original) and without(pattern, original) == without(pattern, mutant)), None)
+    return reason
 
 
 def _changed_lines(diff):
@@ -160,7 +174,7 @@ def run_module(python, module, equivalent, sample=True):
             continue
         if status not in ("killed", "timeout"):
             function = _function(row["name"])
-            reason = equivalent.get((function, *_changed_lines(row["diff"])))
+            reason = equivalent(function, *_changed_lines(row["diff"]))
             if reason is not None:
                 status = "equivalent"
             survivors.append({**row, "function": function, "status": status, "reason": reason})

@@ -9,6 +9,7 @@ from skintopo.height import (
     dct_poisson,
     edge_differences,
     frankot_chellappa,
+    height_normals,
     integrate_normals,
     integrate_slopes,
     masked_least_squares,
@@ -85,8 +86,10 @@ def test_masked_least_squares_on_a_disc_with_two_regions():
     disc = (r - 60) ** 2 + (c - 50) ** 2 < 40**2
     island = (r - 60) ** 2 + (c - 125) ** 2 < 15**2
     mask = disc | island
+    mask[5, 5] = True  # a region of one pixel: its height is its mean, 0
     estimate = masked_least_squares(p, q, SPACING, mask)
     assert np.isnan(estimate[~mask]).all() and np.isfinite(estimate[mask]).all()
+    assert estimate[5, 5] == 0.0
     for region in (disc, island):
         assert rms_error_after_offset(estimate, z, region) <= 1e-4 * np.ptp(z[region])
         assert abs(estimate[region].mean()) < 1e-9  # each region: mean zero (offset unknowable)
@@ -131,3 +134,49 @@ def test_normals_to_gradients_sign_convention():
 def test_unknown_integrator_is_refused():
     with pytest.raises(SkinTopoError, match="unknown integrator"):
         integrate_normals(np.dstack([np.zeros((3, 3)), np.zeros((3, 3)), np.ones((3, 3))]), 1.0, method="magic")
+
+
+def test_frankot_chellappa_is_exact_on_periodic_surfaces_and_has_mean_zero():
+    """On a field-periodic surface the Fourier basis is exact: one period down the rows and two
+    across the columns come back to 1e-9 from their analytic slopes (the spectral derivative of
+    a sampled sinusoid is its derivative), with the documented mean zero; with a tilt added, the
+    plane too, still with mean zero."""
+    rows, columns, dy, dx = 48, 64, 2.0, 3.0
+    r, c = np.mgrid[:rows, :columns]
+    ky, kx = 2 * np.pi / (rows * dy), 2 * 2 * np.pi / (columns * dx)
+    y, x = -r * dy, c * dx  # y up
+    z = 5.0 * np.cos(ky * y) + 3.0 * np.sin(kx * x)
+    p, q = 3.0 * kx * np.cos(kx * x), -5.0 * ky * np.sin(ky * y)
+    found = frankot_chellappa(p, q, (dy, dx))
+    np.testing.assert_allclose(found, z - z.mean(), atol=1e-9)
+    tilted = frankot_chellappa(p + 0.2, q - 0.1, (dy, dx))
+    plane = 0.2 * x - 0.1 * y
+    assert abs(tilted.mean()) < 1e-9
+    np.testing.assert_allclose(tilted - found, plane - plane.mean(), atol=1e-9)
+
+
+def test_edge_differences_at_field_ends_and_mask_borders_are_exact_for_quadratic_slopes():
+    """Quadratic slopes: the one-sided rules (field ends, both sides of a NaN gap) and the
+    centred rule are all exact; an edge touching the gap is NaN; two samples take the
+    trapezoid rule."""
+    x = np.arange(12.0)
+    slope = 0.3 * x**2 - x + 2  # z = 0.1 x^3 - x^2 / 2 + 2 x
+    height = 0.1 * x**3 - x**2 / 2 + 2 * x
+    gapped = slope.copy()
+    gapped[5] = np.nan
+    exact = np.diff(height)
+    found = edge_differences(gapped, axis=0)
+    assert np.isnan(found[4]) and np.isnan(found[5])
+    np.testing.assert_allclose(np.delete(found, [4, 5]), np.delete(exact, [4, 5]), atol=1e-12)
+    np.testing.assert_allclose(edge_differences(np.array([[1.0, 2.0], [3.0, 6.0]]), axis=0), [[2.0, 4.0]])
+    np.testing.assert_allclose(edge_differences(np.stack([slope, slope]), axis=1), np.stack([exact, exact]), atol=1e-12)
+
+
+def test_height_normals_of_a_plane():
+    """z = 0.3 x + 0.2 y (x right, y up; rows run down): n = (-0.3, -0.2, 1) / |.| everywhere,
+    edges included, on rectangular pixels."""
+    rows, columns, dy, dx = 10, 14, 2.0, 5.0
+    r, c = np.mgrid[:rows, :columns]
+    z = 0.3 * c * dx + 0.2 * (-r * dy)
+    expected = np.array([-0.3, -0.2, 1.0]) / np.linalg.norm([-0.3, -0.2, 1.0])
+    np.testing.assert_allclose(height_normals(z, (dy, dx)), np.broadcast_to(expected, (rows, columns, 3)), atol=1e-12)
