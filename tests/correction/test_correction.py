@@ -28,10 +28,11 @@ def test_feathered_correction_keeps_red_far_from_the_wrinkle_and_the_minimum_ins
     mask = groove > 20.0
     red = (np.zeros_like(x), 0.6 * slope_y)  # red too shallow, green and blue too deep
     green = blue = (np.zeros_like(x), 1.3 * slope_y)
-    corrected, z_red, z_a = correct_slopes(red, green, blue, mask, 10.0, method="feathered")
-    weight = substitution_weight(mask, 10.0, method="feathered")
+    corrected, z_red, z_a = correct_slopes(red, green, blue, mask, 10.0, method="feathered", feather_um=60.0)
+    weight = substitution_weight(mask, 10.0, method="feathered", feather_um=60.0)  # narrower than the default
     far = weight == 0
     assert far.sum() > 0.3 * far.size  # the feather (4 sigma) ends well inside the field
+    assert (substitution_weight(mask, 10.0, method="feathered")[far] > 0).any()  # where the default feather would blend
     offset = np.median((corrected.z - z_red.z)[far])
     np.testing.assert_allclose(corrected.z[far] - offset, z_red.z[far], atol=1e-6)
     inside = mask
@@ -61,3 +62,35 @@ def test_correction_is_exactly_the_papers_algorithm_on_known_slopes():
 def test_correction_needs_three_bands():
     with pytest.raises(SkinTopoError, match=r"missing \['blue'\]"):
         spectral_correction({"red": np.zeros((4, 4, 3)), "green": np.zeros((4, 4, 3))}, 1.0)
+
+
+def test_spectral_correction_of_scaled_slopes_reads_the_combined_depth_inside_the_wrinkle():
+    """Red slopes 0.6 x the truth (too shallow), green and blue 1.3 x (too deep): the combined
+    slopes T are (0.6 + 1.3) / 2 = 0.95 x the truth, so inside the wrinkle the corrected height
+    (min of z_a and z_red) is 0.95 of the true depth and red's is 0.6; outside the mask nothing
+    is returned. The wrinkle is found on the combined height (the default segmentation)."""
+    from skintopo.synth import make_surface
+    from skintopo.synth.surfaces import SurfaceSpec, Wrinkle
+    from tests.helpers.analytic import normals_from_slopes
+
+    wrinkle = Wrinkle(depth_um=100.0, width_um=500.0, length_um=3000.0, orientation_deg=10.0, shape="U")
+    surface = make_surface(SurfaceSpec(size_px=(160, 160), pixel_um=20.0, wrinkles=(wrinkle,), microrelief=False,
+                                       roughness_rms_um=0.0, form_radius_mm=None), seed=0)
+    bands = {"red": 0.6, "green": 1.3, "blue": 1.3}
+    normals = {band: normals_from_slopes(k * surface.p, k * surface.q) for band, k in bands.items()}
+    mask = np.ones(surface.height.shape, bool)
+    mask[:, :8] = False
+    result = spectral_correction(normals, 20.0, mask=mask)
+    assert result.segmentation.count == 1 and result.method == "paper"
+    floor = surface.wrinkle_depth > 0.9 * wrinkle.depth_um
+    skin = (surface.wrinkle_depth == 0) & mask
+
+    def depth(z):
+        return np.median(z[skin]) - np.median(z[floor])
+
+    assert depth(result.height.z) == pytest.approx(0.95 * wrinkle.depth_um, rel=0.05)
+    assert depth(result.red_height.z) == pytest.approx(0.6 * wrinkle.depth_um, rel=0.05)
+    assert depth(result.interim_height.z) == pytest.approx(0.95 * wrinkle.depth_um, rel=0.05)
+    assert np.isnan(result.height.z[:, :8]).all() and np.isfinite(result.height.z[mask]).all()
+    with pytest.raises(SkinTopoError, match="unknown correction method"):
+        spectral_correction(normals, 20.0, mask=mask, segmentation=result.segmentation, method="blend")
