@@ -33,9 +33,10 @@ def sinusoid_amplitude(values, x, wavelength):
 
 @pytest.mark.parametrize("sigmas", [(3.0, 1.5), (12.0, 20.0), (25.0, 9.0)])  # direct path, then the FFT path (>= 8 px)
 def test_gaussian_smooth_matches_scipy_with_different_row_and_column_widths(sigmas):
-    """Zero outside the field (scipy's mode "constant"), data up to the border, a stack of two."""
+    """Zero outside the field (scipy's mode "constant"), data up to the border, a stack of two;
+    150 columns padded by 4 x 9 px on each side make an odd FFT length (225)."""
     rng = np.random.default_rng(2)
-    images = rng.normal(size=(2, 90, 130))
+    images = rng.normal(size=(2, 90, 150))
     smoothed = gaussian_smooth(images, sigmas)
     for image, result in zip(images, smoothed):
         expected = scipy.ndimage.gaussian_filter(image, sigmas, mode="constant", truncate=6.0)
@@ -44,16 +45,23 @@ def test_gaussian_smooth_matches_scipy_with_different_row_and_column_widths(sigm
 
 def test_coarse_gaussian_regression_matches_the_full_filter_where_wrinkles_are_masked():
     """The 2.5 mm regression under a wrinkle's masked band, on block means 2 x coarser: within
-    0.3 um of the full filter on a levelled simulated forehead (relief about 8 um RMS)."""
+    0.3 um of the full filter on a levelled simulated forehead (relief about 8 um RMS) when the
+    band's edges fall on block edges, within 1.2 um when they fall inside blocks (the
+    documented limit), and never the same as the full filter (it is the coarse grid)."""
     from skintopo.filters import areal_gaussian_filter, coarse_areal_gaussian_filter, polynomial_form
 
     surface = make_surface(preset_spec("forehead-moderate", size_px=400), seed=1)
-    mask = np.ones(surface.height.shape, bool)
-    mask[150:190, 40:360] = False
-    z = surface.height.z - polynomial_form(surface.height.z, 20.0, 2, mask)
-    full = areal_gaussian_filter(z, 20.0, 2500.0, mask)
-    coarse = coarse_areal_gaussian_filter(z, 20.0, 2500.0, mask)
-    assert np.abs(coarse - full).max() < 0.3 and np.abs(coarse - full)[~mask].max() < 0.3
+    for first, bound in ((150, 0.3), (151, 1.2)):  # the second: the blocks at the edges are partly valid
+        mask = np.ones(surface.height.shape, bool)
+        mask[first:190, 40:360] = False
+        z = surface.height.z - polynomial_form(surface.height.z, 20.0, 2, mask)
+        full = areal_gaussian_filter(z, 20.0, 2500.0, mask)
+        coarse = coarse_areal_gaussian_filter(z, 20.0, 2500.0, mask)
+        assert 0.01 < np.abs(coarse - full).max() < bound and np.abs(coarse - full)[~mask].max() < bound
+    # a filter too narrow for a coarser grid (sigma under 16 samples) is the full filter itself
+    np.testing.assert_array_equal(coarse_areal_gaussian_filter(z, 20.0, 1000.0, mask), areal_gaussian_filter(z, 20.0, 1000.0, mask))
+    # a filter too narrow for a coarser grid (sigma under 16 samples) is the full filter itself
+    np.testing.assert_array_equal(coarse_areal_gaussian_filter(z, 20.0, 1000.0, mask), areal_gaussian_filter(z, 20.0, 1000.0, mask))
 
 
 @pytest.mark.parametrize("factor", [1 / 3, 1.0, 3.0])
@@ -185,6 +193,8 @@ def test_line_segment_closing_leaves_masked_points_out():
         np.testing.assert_array_equal(closed[:, :25], line_segment_closing(z[:, :25], 1.0, 7.0, angle))
         np.testing.assert_array_equal(closed[~mask], z[~mask])
         assert (closed[mask] >= z[mask]).all()  # a closing only fills
+    labels = np.where(mask, np.arange(40)[None, :] % 3 + 1, 0)  # a label image as the mask: non-zero is inside
+    np.testing.assert_array_equal(line_segment_closing(z, 1.0, 7.0, 30.0, labels), line_segment_closing(z, 1.0, 7.0, 30.0, mask))
 
 
 @pytest.mark.parametrize("angle", [0.0, 17.0, 45.0, 90.0, 120.0, 178.0])
@@ -245,6 +255,12 @@ def test_gaussian_highpass_keeps_roughness_and_removes_form():
     high = gaussian_highpass(HeightMap(form + roughness, 2.0), 800.0)
     interior = (slice(10, -10), slice(100, 300))
     assert np.abs(high.z[interior] - roughness[interior]).max() < 0.05
+    mask = np.ones(form.shape, bool)
+    mask[30:50, 180:220] = False  # finite garbage under the mask must not count, and stays masked
+    garbage = np.where(mask, form + roughness, 500.0)
+    masked = gaussian_highpass(HeightMap(garbage, 2.0, mask), 800.0)
+    np.testing.assert_array_equal(masked.mask, mask)
+    assert np.abs(masked.z[interior][mask[interior]] - roughness[interior][mask[interior]]).max() < 0.05
 
 
 def test_block_mean_against_a_padded_reshape():
@@ -311,3 +327,21 @@ def test_sphere_fit_of_a_sampled_cap():
     sparse[0, :3] = z[0, :3]
     with pytest.raises(SkinTopoError, match="at least 4 valid points, got 3"):
         sphere_fit(HeightMap(sparse, (dy, dx)))
+
+
+def test_filter_and_form_errors_name_the_problem():
+    z = np.zeros((20, 20))
+    with pytest.raises(SkinTopoError, match="cut-off must be positive, got 0.0 um"):
+        areal_gaussian_filter(z, 1.0, 0.0)
+    one_row = np.full((20, 20), np.nan)
+    one_row[4] = 1.0
+    with pytest.raises(SkinTopoError, match="the 20 valid points of the 20 x 20 map lie on too few rows or columns"):
+        polynomial_form(one_row, 1.0, 1)
+
+
+def test_a_profile_band_narrower_than_half_a_pixel_is_the_line_itself():
+    pixel = 4.0
+    r, c = np.mgrid[:30, :40] * pixel
+    height = HeightMap(3.0 * np.abs(r - 15 * pixel), pixel)
+    _, narrow = extract_profile(height, (20.0, 60.0), (120.0, 60.0), width_um=1.5)
+    np.testing.assert_allclose(narrow, 0.0, atol=1e-9)
