@@ -2,8 +2,18 @@
 
 import numpy as np
 import pytest
+import scipy.ndimage
 
-from skintopo.segmentation import segment_wrinkles, segmentation_quality
+from skintopo.errors import SkinTopoError
+from skintopo.heightmap import HeightMap
+from skintopo.segmentation import (
+    margin_pixels,
+    segment_wrinkles,
+    segmentation_from_labels,
+    segmentation_quality,
+    skin_around,
+    split_crossing_wrinkles,
+)
 from skintopo.synth import make_surface, preset_spec
 
 
@@ -58,3 +68,113 @@ def test_segmentation_quality_of_overlapping_rectangles():
     assert segmentation_quality(predicted, truth) == {"precision": 0.5, "recall": pytest.approx(1 / 3), "iou": 0.25}
     empty = segmentation_quality(np.zeros_like(truth), truth)
     assert np.isnan(empty["precision"]) and empty["recall"] == 0.0 and empty["iou"] == 0.0
+
+
+def _band(shape, centre, angle_deg, length_px, width_px):
+    """Pixels within width/2 of a segment (x right, rows down; angle counter-clockwise from +x)."""
+    rows, columns = np.mgrid[: shape[0], : shape[1]]
+    theta = np.radians(angle_deg)
+    along = (columns - centre[1]) * np.cos(theta) - (rows - centre[0]) * np.sin(theta)
+    across = (columns - centre[1]) * np.sin(theta) + (rows - centre[0]) * np.cos(theta)
+    return (np.abs(along) <= length_px / 2) & (np.abs(across) <= width_px / 2)
+
+
+@pytest.mark.parametrize("angle", [90.0, 60.0])
+def test_crossing_wrinkles_sharing_a_label_are_split_along_their_lines(angle):
+    """Two 3 mm bands crossing (20 um pixels) as one label beside another wrinkle: the crossing
+    label becomes two (the new one numbered after the last), each band's far parts wholly one
+    label; the other wrinkle keeps its label."""
+    shape = (220, 220)
+    first, second = _band(shape, (110, 110), 0.0, 150, 10), _band(shape, (110, 110), angle, 150, 10)
+    other = _band(shape, (20, 110), 0.0, 120, 8)
+    labels = np.where(other, 1, np.where(first | second, 2, 0))
+    split = split_crossing_wrinkles(labels, 20.0, 1500.0)
+    assert set(np.unique(split)) == {0, 1, 2, 3}
+    np.testing.assert_array_equal(split[other], 1)
+    far = np.hypot(*(np.mgrid[:220, :220] - 110)) > 20
+    first_labels, second_labels = np.unique(split[first & ~second & far]), np.unique(split[second & ~first & far])
+    assert len(first_labels) == 1 and len(second_labels) == 1 and first_labels[0] != second_labels[0]
+    assert set(first_labels) | set(second_labels) == {2, 3}
+
+
+def test_short_spurs_and_a_single_wrinkle_are_left_alone():
+    """A 3 mm band with a 0.12 mm stub (shorter than its width) and a T whose stem is shorter
+    than the minimum length: one label each, unchanged."""
+    shape = (220, 220)
+    band = _band(shape, (60, 110), 0.0, 150, 10) | _band(shape, (52, 110), 90.0, 16, 6)
+    tee = _band(shape, (160, 110), 0.0, 150, 10) | _band(shape, (185, 110), 90.0, 50, 8)
+    labels = np.where(band, 1, np.where(tee, 2, 0))
+    np.testing.assert_array_equal(split_crossing_wrinkles(labels, 20.0, 1500.0), labels)
+
+
+def test_pieces_of_a_wrinkle_cut_by_a_deeper_one_are_chained_across_the_gap():
+    """A deep band with the two pieces of a shallower wrinkle above and below it, stopping short of
+    it on each side (about 0.25 mm; one label, as a basin group gives): the pieces, collinear, become one wrinkle
+    across the band; a piece pointing elsewhere (off by 60 degrees) is not joined to them."""
+    shape = (240, 240)
+    deep = _band(shape, (120, 120), 0.0, 200, 12)
+    above, below = _band(shape, (72, 120), 90.0, 60, 8), _band(shape, (168, 120), 90.0, 60, 8)
+    labels = np.where(deep | above | below, 1, 0)
+    split = split_crossing_wrinkles(labels, 20.0, 1500.0)
+    assert set(np.unique(split)) == {0, 1, 2}
+    assert len(np.unique(split[above | below])) == 1 and np.unique(split[above])[0] != np.unique(split[deep & (np.abs(np.mgrid[:240, :240][1] - 120) > 30)])[0]
+    slanted = _band(shape, (168, 134), 30.0, 60, 8)  # points 60 degrees away from the upper piece
+    labels = np.where(deep | above | slanted, 1, 0)
+    split = split_crossing_wrinkles(labels, 20.0, 1500.0)
+    assert len(np.unique(split[labels > 0])) == 1  # no second chain long enough: left as it was
+
+
+def test_segmentation_of_a_simulated_forehead_against_its_truth():
+    """One moderate forehead (3 wrinkles, 256 x 256): the three found, IoU with the simulator's
+    half-depth regions above 0.7; extent contains the half-depth regions; centre lines inside
+    them; the depth map NaN only outside the valid points; the parameters are those asked."""
+    surface = make_surface(preset_spec("forehead-moderate", size_px=256), seed=1)
+    z = surface.height.z.copy()
+    z[:, :6] = np.nan
+    height = HeightMap(z, surface.height.spacing)
+    found = segment_wrinkles(height, min_depth_um=25.0, min_length_um=1500.0, width_window_um=1500.0)
+    assert found.count == 3
+    assert segmentation_quality(found.mask, surface.wrinkle_labels > 0)["iou"] > 0.7
+    assert found.extent[found.mask].all() and found.extent.sum() > 1.5 * found.mask.sum()
+    assert found.lines.any() and not (found.lines & ~found.mask).any()
+    assert np.isnan(found.depth[:, :6]).all() and np.isfinite(found.depth[:, 6:]).all()
+    assert {k: found.parameters[k] for k in ("min_depth_um", "min_length_um", "width_window_um")} == {
+        "min_depth_um": 25.0, "min_length_um": 1500.0, "width_window_um": 1500.0}
+    assert set(found.parameters) >= {"cutoff_um", "short_cutoff_um", "straight_valley_um"}
+    assert segment_wrinkles(height, min_depth_um=200.0).count == 0  # deeper than every wrinkle
+    with pytest.raises(SkinTopoError, match="minimum depth must be positive and minimum length >= 0, got 0.0, 1500.0"):
+        segment_wrinkles(height, min_depth_um=0.0)
+
+
+def test_skin_around_wrinkles_is_the_valid_skin_beyond_the_margin():
+    """The margin in whole pixels of the finer side (150 um at 20 x 30 um: 8), grown from the
+    wrinkles' extent step by step (city-block distance); None when under 5% of the field."""
+    assert margin_pixels(150.0, (20.0, 30.0)) == 8 and margin_pixels(5.0, 20.0) == 1
+    valid = np.ones((60, 80), bool)
+    valid[:, :4] = False
+    wrinkles = np.zeros_like(valid)
+    wrinkles[28:32, 10:70] = True
+    skin = skin_around(valid, wrinkles, (20.0, 30.0), margin_um=150.0)
+    expected = valid & (scipy.ndimage.distance_transform_cdt(~wrinkles, metric="taxicab") > 8)
+    np.testing.assert_array_equal(skin, expected)
+    everywhere = np.ones_like(valid)
+    everywhere[0, 0] = False
+    assert skin_around(valid, everywhere, 20.0) is None
+
+
+def test_segmentation_from_known_labels_widens_each_wrinkle_by_its_width():
+    """A 10 x 100 pixel rectangle (20 um pixels): its width is area / major axis length, the
+    major axis of the inertia ellipse of n = 100 pixels in a row being 4 sqrt((n^2 - 1) / 12) =
+    115.5 pixels, so 1000 x 400 / (115.5 x 20) = 173 um; the extent reaches that far beyond it.
+    A 4-pixel-wide one beside it: 69 um."""
+    labels = np.zeros((80, 160), np.int32)
+    labels[20:30, 30:130] = 1
+    labels[60:64, 30:130] = 2
+    segmentation = segmentation_from_labels(labels, 20.0)
+    assert segmentation.count == 2 and segmentation.parameters == {"from": "labels"}
+    distance_1 = scipy.ndimage.distance_transform_edt(labels != 1) * 20.0
+    distance_2 = scipy.ndimage.distance_transform_edt(labels != 2) * 20.0
+    major_px = 4 * np.sqrt((100**2 - 1) / 12)
+    width_1, width_2 = 1000 * 400 / (major_px * 20), 400 * 400 / (major_px * 20)
+    np.testing.assert_array_equal(segmentation.extent, (distance_1 <= width_1) | (distance_2 <= width_2))
+    assert segmentation.lines[24:26, 40:120].any(axis=0).all() and not segmentation.lines[labels == 0].any()
