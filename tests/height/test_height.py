@@ -8,6 +8,7 @@ from skintopo.height import (
     INTEGRATORS,
     dct_poisson,
     edge_differences,
+    fill_from_nearest,
     frankot_chellappa,
     height_normals,
     integrate_normals,
@@ -169,6 +170,7 @@ def test_edge_differences_at_field_ends_and_mask_borders_are_exact_for_quadratic
     assert np.isnan(found[4]) and np.isnan(found[5])
     np.testing.assert_allclose(np.delete(found, [4, 5]), np.delete(exact, [4, 5]), atol=1e-12)
     np.testing.assert_allclose(edge_differences(np.array([[1.0, 2.0], [3.0, 6.0]]), axis=0), [[2.0, 4.0]])
+    np.testing.assert_allclose(edge_differences(slope[:3], axis=0), exact[:2], atol=1e-12)  # three samples: one-sided rules
     np.testing.assert_allclose(edge_differences(np.stack([slope, slope]), axis=1), np.stack([exact, exact]), atol=1e-12)
 
 
@@ -180,3 +182,14 @@ def test_height_normals_of_a_plane():
     z = 0.3 * c * dx + 0.2 * (-r * dy)
     expected = np.array([-0.3, -0.2, 1.0]) / np.linalg.norm([-0.3, -0.2, 1.0])
     np.testing.assert_allclose(height_normals(z, (dy, dx)), np.broadcast_to(expected, (rows, columns, 3)), atol=1e-12)
+
+
+def test_fill_from_nearest_bridges_holes_with_the_nearest_valid_value():
+    valid = np.ones((5, 6), bool)
+    a, b = np.arange(30.0).reshape(5, 6), -np.arange(30.0).reshape(5, 6)
+    same = fill_from_nearest(valid, a, b)
+    assert same[0] is a and same[1] is b  # nothing missing: the arrays themselves
+    valid[2, 2:4] = False
+    filled, = fill_from_nearest(valid, a)
+    assert filled[2, 2] in (a[1, 2], a[3, 2], a[2, 1]) and filled[2, 3] in (a[1, 3], a[3, 3], a[2, 4])  # a nearest one
+    assert np.array_equal(filled[valid], a[valid])
