@@ -18,6 +18,10 @@ def test_feathered_weight_follows_the_closed_form_of_a_blurred_straight_border()
     np.testing.assert_allclose(weight[30, 50:], expected, atol=2e-3)
     assert (weight[:, :50] == 1).all()
     np.testing.assert_array_equal(substitution_weight(mask, 10.0, method="paper"), mask.astype(float))
+    across = substitution_weight(mask.T, (10.0, 20.0), method="feathered", feather_um=150.0)  # border along x, rectangular pixels
+    np.testing.assert_allclose(across[50:, 30], expected, atol=2e-3)  # sigma in rows: 7.5 pixels of 10 um
+    labels = np.where(mask, 2, 0)  # a label image as the mask: non-zero is wrinkle
+    np.testing.assert_array_equal(substitution_weight(labels, (10.0, 10.0), method="feathered", feather_um=150.0), weight)
 
 
 def test_feathered_correction_keeps_red_far_from_the_wrinkle_and_the_minimum_inside():
@@ -57,6 +61,14 @@ def test_correction_is_exactly_the_papers_algorithm_on_known_slopes():
     expected_a -= np.median((expected_a - expected_red)[~mask])
     np.testing.assert_allclose(z_red.z, expected_red)
     np.testing.assert_allclose(corrected.z, np.where(mask, np.minimum(expected_a, expected_red), expected_red))
+    for band in (green, blue, red):  # a missing slope in any band, or outside the mask, is a missing height
+        holes = (np.where(np.arange(50) == 45, np.nan, band[0]), band[1])  # dz/dx missing, dz/dy known
+        bands = [holes if b is band else b for b in (red, green, blue)]
+        outside = np.ones(shape, bool)
+        outside[:5] = False
+        corrected, z_red, z_a = correct_slopes(*bands, mask, 10.0, integrator="least-squares", mask=outside)
+        assert np.isnan(corrected.z[:, 45][mask[:, 45]]).all() and np.isnan(corrected.z[:5]).all()
+        assert (~corrected.mask[:5]).all() and np.isfinite(corrected.z[5:, :45]).all()
 
 
 def test_correction_needs_three_bands():
