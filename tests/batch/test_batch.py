@@ -123,6 +123,11 @@ def test_local_processes(study, local_run):
         values = dict(zip(t["results.csv"].columns, row))
         for name, value in expected.items():
             assert values[name] == pytest.approx(value, rel=1e-12, nan_ok=True), (row.subject, row.visit, name)
+    long = pd.read_csv(out / "results_long.csv").pivot(index=["subject", "visit", "region"], columns="parameter", values="value")
+    wide = t["results.csv"].set_index(["subject", "visit", "region"])
+    pd.testing.assert_frame_equal(long[wide.columns].sort_index(), wide.sort_index(), check_names=False, check_dtype=False)
+    study_summary = json.loads((out / "summary.json").read_text())
+    assert (study_summary["items"], study_summary["measured"], study_summary["failed"]) == (6, 5, 1)
     # privacy: no absolute path of the study (or of anything else under it) in any output
     root = str(study.parent)
     for file in out.rglob("*"):

@@ -153,7 +153,7 @@ def test_crossing_wrinkles_are_measured_each_on_its_own(angle, depths):
 
 
 def test_field_totals_of_two_known_wrinkles():
-    """The totals of wrinkles.json against the two wrinkles' geometry: count, total length (sum of
+    """Ids from the top down, and the totals of wrinkles.json against the two wrinkles' geometry: count, total length (sum of
     the exact lengths), length-weighted mean depth, the axial mean orientation (175 and 7
     degrees average across 0, to 1.5 degrees weighted by length, not to 91), and the
     area fraction of the half-depth regions (the simulator's exact labels)."""
@@ -161,7 +161,11 @@ def test_field_totals_of_two_known_wrinkles():
                 Wrinkle(depth_um=90.0, width_um=400.0, length_um=3000.0, orientation_deg=7.0, centre_um=(0.0, 1200.0), shape="G"))
     spec = SurfaceSpec(size_px=(300, 300), pixel_um=20.0, wrinkles=wrinkles, microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
     surface = make_surface(spec, seed=0)
-    totals = measure_wrinkles(surface.height, segment_wrinkles(surface.height)).totals
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    totals = measures.totals
+    top, bottom = measures.wrinkles  # ids 1, 2 from the top: the 90 um wrinkle (y = +1.2 mm, up) first
+    assert (top.id, bottom.id) == (1, 2) and top.centroid_y_mm < bottom.centroid_y_mm
+    assert top.max_depth_um == pytest.approx(90.0, rel=0.05) and bottom.max_depth_um == pytest.approx(150.0, rel=0.05)
     truth = [geometric_measures(w) for w in wrinkles]
     lengths = np.array([t["length_mm"] for t in truth])
     assert totals["count"] == 2

@@ -48,11 +48,11 @@ def run(args):
         measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args))
         write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
                           evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels))
-        segmentation = made.correction.segmentation
+        segmentation = measurement.segmentation  # the wrinkles of the report (the correction segments its own height)
         summary = run_header(
             "demo", acquisition=acquisition_summary(acquisition), preset=args.preset, skin=args.skin, seed=args.seed,
             segmentation=segmentation_quality(segmentation.mask, surface.wrinkle_labels > 0)
-            | {"wrinkles_found": segmentation.count, "wrinkles_true": len(spec.wrinkles)},
+            | {"wrinkles_found": len(measurement.wrinkles.wrinkles), "wrinkles_true": len(spec.wrinkles)},
             evaluation=evaluations,
         )
         summary["seconds_total"] = time.perf_counter() - started
