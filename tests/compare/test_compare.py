@@ -72,3 +72,38 @@ def test_detection_limits_are_student_prediction_limits_of_repeat_differences():
     assert "2 repeat pair(s)" in limits.warnings[0]
     with pytest.raises(SkinTopoError, match="at least one repeat"):
         detection_limits([])
+
+
+def test_compare_visits_on_exact_heights_of_a_treated_wrinkle():
+    """Two visits of the same simulated skin, exact heights (no rendering): the follow-up moved
+    by (40, -30) um and its second wrinkle made 30% shallower. The registration finds the move
+    (50 um, no turn), the treated wrinkle's max depth reads -30% +- 3%, the
+    others within 2%, every wrinkle is matched to its own; each change record is follow-up -
+    baseline and its per cent of the baseline; an albedo carried by the same transform lands
+    where the baseline's is (residual under 0.1 px); a follow-up that does not overlap is refused."""
+    spec = dataclasses.replace(preset_spec("forehead-moderate", size_px=200), microrelief=False)
+    baseline = make_surface(spec, seed=5)
+    wrinkles = list(spec.wrinkles)
+    wrinkles[1] = dataclasses.replace(wrinkles[1], depth_um=0.7 * wrinkles[1].depth_um)
+    follow_up = make_surface(dataclasses.replace(spec, wrinkles=tuple(wrinkles), shift_um=(40.0, -30.0)), seed=5)
+    y, x = ((199 / 2 - np.mgrid[:200, :200][0]) * 20.0, (np.mgrid[:200, :200][1] - 199 / 2) * 20.0)  # um, y up
+
+    def pattern(x, y):  # a skin colour pattern fixed to the skin, seen through each visit's field
+        return 0.5 + 0.1 * np.sin(2 * np.pi * x / 700.0) * np.cos(2 * np.pi * y / 900.0)
+
+    albedo = [pattern(x, y), pattern(x + 40.0, y - 30.0)]
+    comparison = compare_visits(baseline.height, follow_up.height, baseline_albedo=albedo[0], follow_up_albedo=albedo[1])
+    assert np.hypot(*comparison.registration.shift_px) * 20.0 == pytest.approx(50.0, abs=2.0)  # |(40, -30)| um
+    assert abs(comparison.registration.rotation_deg) < 0.1 and comparison.registration.scale == 1.0
+    changes = {wrinkle_id: record["max_depth_um"]["change_percent"] for wrinkle_id, record in comparison.wrinkles.items()}
+    assert len(changes) == 3 and all(record["follow_up_id"] == wrinkle_id for wrinkle_id, record in comparison.wrinkles.items())
+    assert changes[2] == pytest.approx(-30.0, abs=3.0) and abs(changes[1]) < 2 and abs(changes[3]) < 2
+    for record in [*comparison.texture.values(), *comparison.totals.values()]:
+        if np.isfinite(record["baseline"]) and record["baseline"] != 0:
+            assert record["change"] == pytest.approx(record["follow_up"] - record["baseline"], abs=1e-12)
+            assert record["change_percent"] == pytest.approx(100 * record["change"] / abs(record["baseline"]), rel=1e-12)
+    assert comparison.totals["count"]["change"] == 0
+    assert comparison.albedo_residual_px < 0.1 and comparison.aligned_albedo.shape == albedo[0].shape
+    far = make_surface(dataclasses.replace(spec, shift_um=(3000.0, 0.0)), seed=5)
+    with pytest.raises(SkinTopoError, match="overlap"):
+        compare_visits(baseline.height, far.height)
