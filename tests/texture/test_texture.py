@@ -378,3 +378,19 @@ def test_every_missing_or_impossible_value_has_its_reason():
     assert np.isnan(flat["Ssk"].value) and "flat" in parameter_note(flat["Ssk"])
     assert "outside [2, 3]" in parameter_note(Parameter("D_power-spectrum", 1.716, "", "power spectrum"))
     assert parameter_note(Parameter("D_power-spectrum", 2.3, "", "power spectrum")) == ""
+
+
+def test_areal_power_spectrum_dimension_of_fractional_brownian_surfaces():
+    """The radially averaged 2-D spectrum of an fBm surface falls as f^-(2H + 2), so
+    D = (8 + slope) / 2 = 3 - H: within 0.06 on the mean of three 256 x 256 fields (their random
+    amplitudes scatter single fields by about 0.07); the pixel size scales the frequencies, not
+    the slope; fewer than 64 points are refused."""
+    from skintopo.texture.fractal import power_spectrum_areal
+
+    for hurst in (0.3, 0.8):
+        found = [power_spectrum_areal(HeightMap(fbm(256, hurst, seed), 2.0)).dimension for seed in range(3)]
+        assert np.mean(found) == pytest.approx(3 - hurst, abs=0.06)
+    z = fbm(256, 0.5, 0)
+    assert power_spectrum_areal(HeightMap(z, 10.0)).dimension == pytest.approx(power_spectrum_areal(HeightMap(z, 2.0)).dimension, abs=1e-9)
+    with pytest.raises(SkinTopoError, match="too few valid points"):
+        power_spectrum_areal(HeightMap(np.zeros((7, 9)), 1.0))
