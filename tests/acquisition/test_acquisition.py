@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from skintopo.acquisition import load_acquisition, read_image
-from skintopo.errors import AcquisitionError
+from skintopo.acquisition import load_acquisition, read_image, write_acquisition
+from skintopo.errors import AcquisitionError, SkinTopoError
 from skintopo.formats import write_png
 
 
@@ -72,3 +72,102 @@ def test_srgb_encoded_images_are_decoded_by_the_standard_curve(tmp_path):
     (tmp_path / "acquisition.json").write_text(json.dumps(manifest))
     decoded = load_acquisition(tmp_path, saturation=1.01).bands["green"].images[0, 0]
     np.testing.assert_allclose(decoded, [0.0, 0.0031308, 0.21404, 1.0], rtol=2e-4, atol=1e-7)
+
+
+def _set(*path_and_value):
+    """An edit of the manifest: the value at a path of keys and indices."""
+    *path, key, value = path_and_value
+
+    def change(manifest):
+        target = manifest
+        for step in path:
+            target = target[step]
+        target[key] = value
+    return change
+
+
+MANIFEST_PROBLEMS = [
+    (_set("pixel_size_um", -1), "acquisition.json: field 'pixel_size_um' must be a positive number of micrometres, got -1"),
+    (_set("gamma", "linear"), "acquisition.json: field 'gamma' must be a positive number or \"srgb\", got 'linear'"),
+    (_set("full_scale", 0), "acquisition.json: field 'full_scale' must be a positive number, got 0"),
+    (_set("crosstalk", [[1, 0, 0], [1, 0, 0], [0, 0, 1]]), "field 'crosstalk' must be an invertible 3 x 3 matrix"),
+    (_set("crosstalk", [[1, 0], [0, 1]]), "field 'crosstalk' must be an invertible 3 x 3 matrix"),
+    (_set("device", 5), "acquisition.json: field 'device' must name a device file (device.json)"),
+    (_set("dark", 3), "acquisition.json: field 'dark' must name an image file"),
+    (_set("images", []), "acquisition.json: field 'images' must be a non-empty list"),
+    (_set("images", 0, 7), "images[0] must be an object"),
+    (_set("images", 0, "file", ""), "images[0]: field 'file' must name an image file"),
+    (_set("images", 1, "colour", "red"), "images[1] (red_01.png): unknown field 'colour'"),
+    (_set("images", 2, "band", "purple"), "images[2] (red_02.png): field 'band' must be one of ['red', 'green', 'blue', 'white'], got 'purple'"),
+    (_set("images", 0, "led", "north"), "images[0] (red_00.png): field 'led' needs a 'device' file in the manifest"),
+    (_set("images", 3, "light", [0.0, 1.0]), "images[3] (red_03.png): field 'light' must be a list of 3 numbers (unit vector x, y, z)"),
+    (_set("images", 3, "light", [0.0, True, 1.0]), "images[3] (red_03.png): field 'light' must be a list of 3 numbers (unit vector x, y, z)"),
+    (_set("images", 4, "intensity", -2), "images[4] (green_00.png): field 'intensity' must be a positive number, got -2"),
+    (_set("images", 5, "wavelength_nm", 0), "images[5] (green_01.png): field 'wavelength_nm' must be a positive number, got 0"),
+    (_set("images", 6, "channel", "alpha"), "images[6] (green_02.png): field 'channel' must be one of"),
+    (_set("images", 7, "flat", 4), "images[7] (green_03.png): field 'flat' must name an image file"),
+    (_set("lens", "50 mm"), "acquisition.json: unknown field 'lens'"),
+    (_set("format", "other"), "acquisition.json: field 'format' must be 'skintopo-acquisition', got 'other'"),
+    (_set("version", 99), "acquisition.json: field 'version' must be 1 (this reader's format), got 99"),
+]
+
+
+@pytest.mark.parametrize("change, message", MANIFEST_PROBLEMS, ids=[m.split(": ", 1)[-1][:40] for _, m in MANIFEST_PROBLEMS])
+def test_each_manifest_problem_is_named(lambertian_acquisition, change, message):
+    folder, _, _ = lambertian_acquisition
+    edit_manifest(folder, change)
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder)
+    assert any(message in problem for problem in error.value.problems), error.value.problems
+    assert error.value.source.endswith("acquisition.json")
+
+
+def test_every_problem_of_a_manifest_is_reported_at_once(lambertian_acquisition):
+    folder, _, _ = lambertian_acquisition
+
+    def change(manifest):
+        manifest["gamma"] = -1
+        manifest["images"][0]["band"] = "purple"
+        manifest["images"][1]["intensity"] = 0
+    edit_manifest(folder, change)
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder)
+    assert len(error.value.problems) == 3
+
+
+def test_manifest_and_folder_errors(lambertian_acquisition, tmp_path):
+    folder, _, _ = lambertian_acquisition
+    with pytest.raises(AcquisitionError, match="pixel_size_um is 10.0 but 20.0 was given"):
+        load_acquisition(folder, pixel_um=20.0)
+    assert load_acquisition(folder, pixel_um=10.0).pixel_um == 10.0
+    (folder / "acquisition.json").write_text("{not json")
+    with pytest.raises(AcquisitionError, match="not valid JSON"):
+        load_acquisition(folder)
+    (folder / "acquisition.json").write_text("[1, 2]")
+    with pytest.raises(AcquisitionError, match="the manifest must be a JSON object"):
+        load_acquisition(folder)
+    with pytest.raises(AcquisitionError, match="no such acquisition folder or manifest"):
+        load_acquisition(tmp_path / "nowhere")
+
+
+def test_written_acquisition_reads_back(tmp_path):
+    """write_acquisition -> load_acquisition: images to 16-bit precision (divided by the band's
+    declared intensity), lights, pixel size, wavelength defaults, mask and description; a folder
+    that is not empty is refused."""
+    rng = np.random.default_rng(4)
+    lights = np.array([[0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [-0.6, 0.0, 0.8], [0.0, -0.6, 0.8]])
+    images = {band: rng.uniform(0.1, 0.9, (4, 12, 16)) for band in ("red", "blue")}
+    mask = np.ones((12, 16), bool)
+    mask[:2] = False
+    write_acquisition(tmp_path / "a", {band: (im, lights) for band, im in images.items()}, 15.0, mask=mask,
+                      description="phantom", intensities={"red": 2.0, "blue": 0.5})
+    acquisition = load_acquisition(tmp_path / "a")
+    assert acquisition.pixel_um == 15.0 and sorted(acquisition.bands) == ["blue", "red"]
+    for band, intensity in (("red", 2.0), ("blue", 0.5)):
+        np.testing.assert_allclose(acquisition.bands[band].lights, lights)
+        np.testing.assert_allclose(acquisition.bands[band].images, images[band] / intensity, atol=1 / 65535 / intensity)
+    np.testing.assert_array_equal(acquisition.mask, mask)
+    manifest = json.loads((tmp_path / "a" / "acquisition.json").read_text())
+    assert manifest["description"] == "phantom" and {e["wavelength_nm"] for e in manifest["images"] if e["band"] == "red"} == {625.0}
+    with pytest.raises(SkinTopoError, match="not empty|exists"):
+        write_acquisition(tmp_path / "a", {"red": (images["red"], lights)}, 15.0)

@@ -141,7 +141,8 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
             problems.append(f"{label}: field 'flat' must name an image file")
         elif flat is not None and "intensity" in entry:
             problems.append(f"{label}: give either 'flat' (the intensity is then measured) or 'intensity', not both")
-        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, None if flat is None else folder / flat, led))
+        flat_file = folder / flat if isinstance(flat, str) and flat else None  # a bad 'flat' is reported above
+        parsed.append((band, folder / file, light, intensity, wavelength, channel, label, flat_file, led))
 
     if problems:  # structure is wrong: do not read images yet, report what we have
         raise AcquisitionError(manifest_path, problems)
