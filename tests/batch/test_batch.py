@@ -337,3 +337,24 @@ def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(t
         assert (image[:, -6:] >= 250).all(), f"content reaches the right edge at {width} px"
         if os.environ.get("SKINTOPO_KEEP_SCREENSHOTS"):
             shutil.copy(shot, Path(os.environ["SKINTOPO_KEEP_SCREENSHOTS"]) / shot.name)
+
+
+def test_a_two_visit_study_in_one_process(tmp_path):
+    """The whole study path in the fast tests (one worker, 2 visits of 112 x 112 px): 2 measures
+    and 1 compare computed, the tables written (results.csv one row per visit, changes.csv
+    follow-up - baseline), a second run skips all three, a changed acquisition recomputes its
+    measure and the compare that uses it, and nothing is left half-written."""
+    study_path = write_study(tmp_path / "study", ["S1"], size_px=112, depth_factors=(1.0, 0.8))
+    out = tmp_path / "out"
+    counts, _, failures = run_study(study_path, out, workers=1)
+    assert failures == [] and counts == {"computed": 3, "skipped": 0, "failed": 0}
+    results = pd.read_csv(out / "results.csv")
+    assert list(results.visit) == ["V1", "V2"] and (results.subject == "S1").all()
+    changes = pd.read_csv(out / "changes.csv")
+    assert set(changes.visit) == {"V2"} and set(changes.baseline_visit) == {"V1"}
+    np.testing.assert_allclose(changes.change, changes.follow_up - changes.baseline, rtol=1e-12)
+    assert run_study(study_path, out, workers=1)[0] == {"computed": 0, "skipped": 3, "failed": 0}
+    manifest = study_path.parent / "S1_v2" / "acquisition.json"
+    manifest.write_text(manifest.read_text().replace("synthetic skin", "synthetiC skin"))
+    assert run_study(study_path, out, workers=1)[0] == {"computed": 2, "skipped": 1, "failed": 0}
+    assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.partial"))
