@@ -1,5 +1,7 @@
 """Height map formats: round trips and files readable by the other packages."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ def sample():
     return HeightMap(z, (12.5, 10.0))
 
 
-@pytest.mark.parametrize("suffix, tolerance", [(".x3p", 1e-12), (".sdf", 1e-12), (".gwy", 1e-12), (".npy", 0.0), (".tif", None)])
+@pytest.mark.parametrize("suffix, tolerance", [(".x3p", 1e-12), (".sdf", 1e-12), (".gwy", 1e-12), (".npy", 0.0), (".tif", None), (".tiff", None)])
 def test_round_trip(tmp_path, suffix, tolerance):
     height = sample()
     path = tmp_path / f"h{suffix}"
@@ -110,3 +112,52 @@ def test_mesh_keeps_the_map_upright_in_millimetres(tmp_path):
     top = mesh.vertices[np.argmax(mesh.vertices[:, 2])]
     np.testing.assert_allclose(top, [30 * 10.0e-3, -5 * 12.5e-3, 50.0e-3], atol=1e-9)
     np.testing.assert_allclose(mesh.bounds, [[0, -29 * 12.5e-3, 0], [39 * 10.0e-3, 0, 50.0e-3]], atol=1e-9)
+
+
+def test_height_file_errors_name_the_file_and_the_problem(tmp_path):
+    height = sample()
+    (tmp_path / "h.bmp").write_bytes(b"x")
+    with pytest.raises(SkinTopoError, match=r"h.bmp: unknown height map format '.bmp' \(readable: .x3p, "):
+        HeightMap.load(tmp_path / "h.bmp")
+    np.save(tmp_path / "h.npy", height.z)
+    with pytest.raises(SkinTopoError, match=r"h.npy: a .npy height map carries no pixel size; give it \(pixel_um / --pixel-um\)"):
+        HeightMap.load(tmp_path / "h.npy")
+    np.save(tmp_path / "cube.npy", np.zeros((2, 2, 2)))
+    with pytest.raises(SkinTopoError, match=r"cube.npy: expected a 2-D numeric array, got float64 of shape \(2, 2, 2\)"):
+        HeightMap.load(tmp_path / "cube.npy", pixel_um=1.0)
+    height.save(tmp_path / "h.x3p")
+    with pytest.raises(SkinTopoError, match="h.x3p: pixel size in the file is 10 um, not 20 um as given"):
+        HeightMap.load(tmp_path / "h.x3p", pixel_um=20.0)
+    assert HeightMap.load(tmp_path / "h.x3p", pixel_um=10.0).spacing == pytest.approx((12.5, 10.0))
+
+
+def test_writes_are_atomic_and_create_folders(tmp_path):
+    """A height saved into folders that do not exist yet creates them; a write that fails leaves
+    neither the file nor its temporary part."""
+    from skintopo.formats import atomic_write
+
+    sample().save(tmp_path / "a" / "b" / "h.x3p")
+    assert (tmp_path / "a" / "b" / "h.x3p").is_file() and not list((tmp_path / "a" / "b").glob("*.part"))
+
+    def failing(tmp):
+        Path(tmp).write_bytes(b"half")
+        raise OSError("disk full")
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(tmp_path / "c" / "x.bin", failing)
+    assert list((tmp_path / "c").iterdir()) == []
+
+
+def test_a_flat_map_survives_the_16_bit_tiff():
+    z = np.full((6, 7), 42.0)
+    z[0, 0] = np.nan
+    back = _tiff_round_trip(HeightMap(z, 5.0))
+    np.testing.assert_array_equal(np.isnan(back.z), np.isnan(z))
+    np.testing.assert_allclose(back.z[1:], 42.0)
+
+
+def _tiff_round_trip(height):
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        height.save(Path(folder) / "h.tif")
+        return HeightMap.load(Path(folder) / "h.tif")
