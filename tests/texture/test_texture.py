@@ -9,7 +9,7 @@ import scipy.stats
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.texture import Parameter, measure_texture, parameter_note, parameters_by_name
-from skintopo.texture.areal import MaterialRatio, autocorrelation, functional_parameters, height_parameters, hybrid_parameters
+from skintopo.texture.areal import MaterialRatio, autocorrelation, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
 from skintopo.texture.fractal import ESTIMATORS, fractal_dimension, power_spectrum
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
 from tests.helpers.analytic import fbm
@@ -394,3 +394,47 @@ def test_areal_power_spectrum_dimension_of_fractional_brownian_surfaces():
     assert power_spectrum_areal(HeightMap(z, 10.0)).dimension == pytest.approx(power_spectrum_areal(HeightMap(z, 2.0)).dimension, abs=1e-9)
     with pytest.raises(SkinTopoError, match="too few valid points"):
         power_spectrum_areal(HeightMap(np.zeros((7, 9)), 1.0))
+
+
+def test_fractal_results_carry_their_method_and_flat_or_empty_maps_are_named():
+    """Each estimator's result names its method (the column D_<method>); on a flat map the
+    estimators that need relief say so; a map with no valid point is refused by name."""
+    z = fbm(64, 0.5, 1)
+    for method in ESTIMATORS:
+        result = fractal_dimension(HeightMap(z, 1.0), method)
+        assert result.method == method and np.isfinite(result.dimension) and np.isfinite(result.intercept)
+    flat = HeightMap(np.zeros((64, 64)), 1.0)
+    with pytest.raises(SkinTopoError, match="^cube counting: the map is flat$"):
+        ESTIMATORS["cube-counting"](flat)
+    with pytest.raises(SkinTopoError, match="^triangulation: the map is flat$"):
+        ESTIMATORS["triangulation"](flat)
+    empty = HeightMap(np.full((64, 64), np.nan), 1.0)
+    with pytest.raises(SkinTopoError, match="^the height map has no valid points$"):
+        ESTIMATORS["partitioning"](empty)
+    with pytest.raises(SkinTopoError, match="^the height map has no valid points$"):
+        height_parameters(empty)
+
+
+def test_measure_texture_passes_the_volume_ratios_on():
+    """Vmp at p = 5% and Vvc/Vvv at q = 60% of heights uniform on [-1, 1] (no form to remove):
+    Vm(p) = (p/100)^2, Vv(q) = (1 - q/100)^2, Vvc = Vv(p) - Vv(q)."""
+    z = np.linspace(-1.0, 1.0, 400 * 400)
+    np.random.default_rng(2).shuffle(z)
+    values = parameters_by_name(measure_texture(HeightMap(z.reshape(400, 400), 1.0), level_order=None, p=5.0, q=60.0, fractal_methods=()))
+    assert values["Vmp"] == pytest.approx(0.05**2, rel=1e-3)
+    assert values["Vvv"] == pytest.approx(0.4**2, rel=1e-3)
+    assert values["Vvc"] == pytest.approx(0.95**2 - 0.4**2, rel=1e-3)
+
+
+@pytest.mark.parametrize("phi", [30.0, 120.0])
+def test_spatial_parameters_of_an_oblique_sinusoid(phi):
+    """z = sin(2 pi (x cos phi + y sin phi) / L), x right and y up: the autocorrelation is
+    cos(2 pi d / L) along phi, so Sal = L acos(0.2) / (2 pi) (its fastest decay to 0.2); it never
+    decays along the crests, so Str is undefined (NaN); Std = phi (within the 0.5 degree bins)."""
+    rows, columns = np.mgrid[:256, :256]
+    x, y = columns * 1.0, -rows * 1.0
+    angle = np.radians(phi)
+    z = np.sin(2 * np.pi * (x * np.cos(angle) + y * np.sin(angle)) / 16.0)
+    values = spatial_parameters(HeightMap(z, 1.0))
+    assert values["Sal"] == pytest.approx(16.0 * np.arccos(0.2) / (2 * np.pi), rel=0.01)
+    assert np.isnan(values["Str"]) and abs(values["Std"] - phi) <= 0.5
