@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from skintopo.errors import SkinTopoError
 from skintopo.evaluation import match_wrinkle
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
