@@ -171,3 +171,37 @@ def test_written_acquisition_reads_back(tmp_path):
     assert manifest["description"] == "phantom" and {e["wavelength_nm"] for e in manifest["images"] if e["band"] == "red"} == {625.0}
     with pytest.raises(SkinTopoError, match="not empty|exists"):
         write_acquisition(tmp_path / "a", {"red": (images["red"], lights)}, 15.0)
+
+
+def test_image_reading_errors_and_layouts(tmp_path):
+    """Planar RGB TIFF is turned channel-last; RGBA keeps RGB; every refusal names the file."""
+    rgb = np.arange(3 * 5 * 6, dtype=np.uint16).reshape(3, 5, 6)
+    tifffile.imwrite(tmp_path / "planar.tif", rgb, photometric="rgb", planarconfig="separate")
+    np.testing.assert_array_equal(read_image(tmp_path / "planar.tif"), np.moveaxis(rgb, 0, -1))
+    tifffile.imwrite(tmp_path / "rgba.tiff", np.zeros((5, 6, 4), np.uint8), photometric="rgb", extrasamples=["unassalpha"])
+    assert read_image(tmp_path / "rgba.tiff").shape == (5, 6, 3)
+    for name, content, message in (
+        ("missing.png", None, "missing.png: image file not found"),
+        ("broken.tif", b"not a tiff", "broken.tif: not a readable TIFF image"),
+        ("picture.bmp", b"BM", "picture.bmp: unsupported image type '.bmp' \\(use PNG, TIFF or a camera raw file\\)"),
+    ):
+        if content is not None:
+            (tmp_path / name).write_bytes(content)
+        with pytest.raises(SkinTopoError, match=message):
+            read_image(tmp_path / name)
+    tifffile.imwrite(tmp_path / "signed.tif", np.zeros((4, 4), np.int16))
+    with pytest.raises(SkinTopoError, match="signed.tif: unsupported pixel type int16"):
+        read_image(tmp_path / "signed.tif")
+    tifffile.imwrite(tmp_path / "stack.tif", np.zeros((2, 4, 4, 2), np.uint8), photometric="minisblack")
+    with pytest.raises(SkinTopoError, match="stack.tif: expected a grey or RGB image, got an array of shape"):
+        read_image(tmp_path / "stack.tif")
+
+
+def test_a_mask_of_another_size_is_named(lambertian_acquisition):
+    folder, _, _ = lambertian_acquisition
+    write_png(folder / "mask.png", np.full((10, 10), 255, np.uint8))
+    edit_manifest(folder, _set("mask", "mask.png"))
+    with pytest.raises(AcquisitionError, match="mask.png: mask size 10x10 differs from the images \\(64x48\\)"):
+        load_acquisition(folder)
+    write_png(folder / "mask.png", np.where(np.arange(64)[None, :] < 32, 255, 0).astype(np.uint8) * np.ones((48, 1), np.uint8))
+    np.testing.assert_array_equal(load_acquisition(folder).mask[0], np.arange(64) < 32)
