@@ -309,3 +309,20 @@ def test_robust_solver_with_many_lights_drops_every_outlier():
     assert np.nanmean(angular_error_degrees(plain.normals, truth)[8:]) > 2
     assert np.nanmax(angular_error_degrees(robust.normals, truth)) < 0.1
     np.testing.assert_array_equal(robust.used, ~corrupted)
+
+
+def test_a_label_image_mask_and_a_bad_shadow_fraction():
+    """A mask given as a label image (0 outside, any positive number inside) solves the same
+    pixels as the boolean mask; a shadow fraction outside [0, 1) is refused with its value."""
+    z, p, q = plane_and_bump(shape=(20, 24))
+    truth = normals_from_slopes(0.2 * p, 0.2 * q)
+    lights = four_lights()
+    images = render_lambertian(truth, 0.5, lights)
+    labels = np.zeros((20, 24), int)
+    labels[5:15, 4:20] = 7
+    by_labels, by_mask = photometric_stereo(images, lights, mask=labels), photometric_stereo(images, lights, mask=labels > 0)
+    np.testing.assert_array_equal(by_labels.valid, by_mask.valid)
+    np.testing.assert_array_equal(by_labels.normals, by_mask.normals)
+    assert by_mask.valid.sum() == 160
+    with pytest.raises(SkinTopoError, match="shadow_fraction must be in \\[0, 1\\), got 1.0"):
+        photometric_stereo(images, lights, shadow_fraction=1.0)
