@@ -41,7 +41,7 @@ WORK = ROOT / "build" / "mutation"
 
 # module -> (the files mutmut mutates, the tests run against them: the module's own folder, and
 # for acquisition the two files that test its DiLiGenT reader and its folder inference, for batch
-# the command's tests of a study's validation)
+# the study tests (its study.csv reader) and the command's tests of a study's validation)
 CORE_MODULES = {
     "normals": ("src/skintopo/normals.py", ["tests/normals"]),
     "height": ("src/skintopo/height.py", ["tests/height"]),
@@ -53,7 +53,7 @@ CORE_MODULES = {
     "texture": ("src/skintopo/texture/*", ["tests/texture"]),
     "acquisition": ("src/skintopo/acquisition/*", ["tests/acquisition", "tests/normals/test_diligent.py", "tests/cli/test_init.py"]),
     "formats": ("src/skintopo/formats.py", ["tests/formats"]),
-    "batch": ("src/skintopo/batch.py", ["tests/batch", "tests/cli/test_batch.py"]),
+    "batch": ("src/skintopo/batch.py", ["tests/batch", "tests/study", "tests/cli/test_batch.py"]),
 }
 
 # Run inside a module's work folder: every mutant's status and, unless killed, its diff.
