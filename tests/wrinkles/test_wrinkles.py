@@ -220,3 +220,16 @@ def test_depth_s_filter_option_and_settings_errors():
         WrinkleSettings(margin_um=0.0)
     with pytest.raises(SkinTopoError, match="the depth's S-filter cut-off must be 0 \\(none\\) or positive, got -1.0 um"):
         WrinkleSettings(short_cutoff_um=-1.0)
+
+
+def test_no_wrinkles_and_a_segmentation_of_another_map():
+    """A field without wrinkles has no measures and zero totals; a segmentation made on a map of
+    another size is refused, also when it found nothing."""
+    from skintopo.heightmap import HeightMap
+    from skintopo.segmentation import segmentation_from_labels
+
+    flat = HeightMap(np.zeros((60, 80)), 20.0)
+    measures = measure_wrinkles(flat, segmentation_from_labels(np.zeros((60, 80), np.int32), 20.0))
+    assert measures.wrinkles == [] and measures.totals["count"] == 0 and measures.totals["total_length_mm"] == 0
+    with pytest.raises(ValueError, match="shape"):
+        measure_wrinkles(flat, segmentation_from_labels(np.zeros((50, 80), np.int32), 20.0))
