@@ -193,3 +193,15 @@ def test_fill_from_nearest_bridges_holes_with_the_nearest_valid_value():
     filled, = fill_from_nearest(valid, a)
     assert filled[2, 2] in (a[1, 2], a[3, 2], a[2, 1]) and filled[2, 3] in (a[1, 3], a[3, 3], a[2, 4])  # a nearest one
     assert np.array_equal(filled[valid], a[valid])
+
+
+@pytest.mark.parametrize("method", ["dct-poisson", "frankot-chellappa"])
+def test_whole_field_integrators_leave_missing_slopes_missing(method):
+    """A missing slope (NaN) in either component is a missing height there, and the rest of the
+    field is still integrated (the missing slopes count as 0)."""
+    z, p, q = paraboloid_with_wrinkles()
+    p, q = p.copy(), q.copy()
+    p[10, 12] = np.nan
+    q[30, 40] = np.nan
+    found = integrate_slopes(p, q, SPACING, method=method).z
+    assert np.isnan(found[10, 12]) and np.isnan(found[30, 40]) and np.isfinite(found).sum() == found.size - 2
