@@ -92,8 +92,14 @@ def test_spectral_correction_of_scaled_slopes_reads_the_combined_depth_inside_th
     normals = {band: normals_from_slopes(k * surface.p, k * surface.q) for band, k in bands.items()}
     mask = np.ones(surface.height.shape, bool)
     mask[:, :8] = False
+    groove = np.zeros(surface.height.shape)
+    groove[:, 1:7] = 2.0 * np.sign(np.arange(6) - 2.5)  # a steep V outside the mask: never measured, never a wrinkle
+    for band in normals:
+        normals[band] = np.where(mask[..., None], normals[band], normals_from_slopes(groove, np.zeros_like(groove)))
     result = spectral_correction(normals, 20.0, mask=mask)
     assert result.segmentation.count == 1 and result.method == "paper"
+    np.testing.assert_array_equal(result.red_height.mask, result.height.mask)
+    np.testing.assert_array_equal(result.interim_height.mask, result.height.mask)
     floor = surface.wrinkle_depth > 0.9 * wrinkle.depth_um
     skin = (surface.wrinkle_depth == 0) & mask
 
@@ -106,3 +112,8 @@ def test_spectral_correction_of_scaled_slopes_reads_the_combined_depth_inside_th
     assert np.isnan(result.height.z[:, :8]).all() and np.isfinite(result.height.z[mask]).all()
     with pytest.raises(SkinTopoError, match="unknown correction method"):
         spectral_correction(normals, 20.0, mask=mask, segmentation=result.segmentation, method="blend")
+    from skintopo.height import integrate_slopes, normals_to_gradients
+
+    fourier = spectral_correction(normals, 20.0, mask=mask, segmentation=result.segmentation, integrator="frankot-chellappa")
+    red = integrate_slopes(*normals_to_gradients(normals["red"]), 20.0, mask=mask, method="frankot-chellappa")
+    np.testing.assert_allclose(fourier.red_height.z, red.z, atol=1e-9)
