@@ -136,8 +136,12 @@ def test_segmentation_of_a_simulated_forehead_against_its_truth():
     assert found.count == 3
     assert segmentation_quality(found.mask, surface.wrinkle_labels > 0)["iou"] > 0.7
     assert found.extent[found.mask].all() and found.extent.sum() > 1.5 * found.mask.sum()
-    assert found.lines.any() and not (found.lines & ~found.mask).any()
+    assert not (found.lines & ~found.mask).any() and set(np.unique(found.labels[found.lines])) == {1, 2, 3}
     assert np.isnan(found.depth[:, :6]).all() and np.isfinite(found.depth[:, 6:]).all()
+    assert not found.extent[:, :6].any() and (found.depth[found.extent] > 0.25 * 25.0).all()  # walls end at a quarter of the min depth
+    paper = segment_wrinkles(height, min_depth_um=25.0, straight_valley_um=0)  # the paper's band-pass alone finds them too
+    assert paper.count == 3 and segmentation_quality(paper.mask, surface.wrinkle_labels > 0)["iou"] > 0.7
+    assert segment_wrinkles(height, min_length_um=0.0).count >= 3
     assert {k: found.parameters[k] for k in ("min_depth_um", "min_length_um", "width_window_um")} == {
         "min_depth_um": 25.0, "min_length_um": 1500.0, "width_window_um": 1500.0}
     assert set(found.parameters) >= {"cutoff_um", "short_cutoff_um", "straight_valley_um"}
