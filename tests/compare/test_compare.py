@@ -8,9 +8,12 @@ import pytest
 from skintopo.compare import Comparison, compare_visits, detection_limits
 from skintopo.errors import SkinTopoError
 from skintopo.height import integrate_normals
+from skintopo.heightmap import HeightMap
 from skintopo.normals import photometric_stereo
+from skintopo.registration import apply_registration
 from skintopo.results import comparison_rows
 from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
+from skintopo.texture import measure_texture, parameters_by_name
 
 
 def visit(spec, noise_seed):
@@ -69,7 +72,10 @@ def test_detection_limits_are_student_prediction_limits_of_repeat_differences():
     assert limits.limits["wrinkle1.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 100, rel=1e-6)
     assert limits.limits["wrinkle2.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 50, rel=1e-6)
     assert limits.degrees_of_freedom == {"Sa": 2, "wrinkle1.max_depth_um": 4, "wrinkle2.max_depth_um": 4}
-    assert "2 repeat pair(s)" in limits.warnings[0]
+    assert "2 repeat pair(s): 2 degree(s) of freedom for some parameters" in limits.warnings[0]
+    assert "(t factor 4.3 instead of 1.96)" in limits.warnings[0]  # t_(0.975, 2) = 4.303, the normal quantile 1.960
+    assert limits.as_dict() == {"confidence": 0.95, "repeat_pairs": 2, "warnings": list(limits.warnings),
+                                "degrees_of_freedom": limits.degrees_of_freedom}
     with pytest.raises(SkinTopoError, match="at least one repeat"):
         detection_limits([])
 
@@ -104,6 +110,32 @@ def test_compare_visits_on_exact_heights_of_a_treated_wrinkle():
             assert record["change_percent"] == pytest.approx(100 * record["change"] / abs(record["baseline"]), rel=1e-12)
     assert comparison.totals["count"]["change"] == 0
     assert comparison.albedo_residual_px < 0.1 and comparison.aligned_albedo.shape == albedo[0].shape
+    assert comparison.baseline_wrinkles.totals["count"] == 3 and comparison.follow_up_wrinkles.totals["count"] == 3
+    # texture on the overlap alone: the baseline's Sa over the points the registered follow-up covers
+    aligned = apply_registration(follow_up.height.z, comparison.registration)
+    overlap = HeightMap(baseline.height.z, baseline.height.spacing, np.isfinite(aligned))
+    assert comparison.texture["Sa"]["baseline"] == pytest.approx(parameters_by_name(measure_texture(overlap))["Sa"], rel=1e-9)
+    assert np.isnan(comparison.difference[~np.isfinite(aligned)]).all()
+    strict = compare_visits(baseline.height, follow_up.height, segmentation_options={"min_depth_um": 500.0})
+    assert strict.wrinkles == {} and strict.totals["count"]["baseline"] == 0
+    with pytest.raises(SkinTopoError, match="the baseline albedo image is \\(10, 10\\), its height map \\(200, 200\\): they must match"):
+        compare_visits(baseline.height, follow_up.height, baseline_albedo=np.ones((10, 10)), follow_up_albedo=albedo[1])
     far = make_surface(dataclasses.replace(spec, shift_um=(3000.0, 0.0)), seed=5)
     with pytest.raises(SkinTopoError, match="overlap"):
         compare_visits(baseline.height, far.height)
+
+
+def test_change_records_and_wrinkle_matching():
+    """A change in per cent of the baseline's magnitude (NaN from a zero baseline); wrinkles
+    matched by the largest overlap, at least 20% of the smaller region, else None."""
+    from skintopo.compare import _change, match_wrinkles
+
+    assert _change(1.0, 1.5) == {"baseline": 1.0, "follow_up": 1.5, "change": 0.5, "change_percent": 50.0}
+    assert _change(-2.0, -1.0)["change_percent"] == 50.0 and np.isnan(_change(0.0, 2.0)["change_percent"])
+    baseline, follow_up = np.zeros((20, 30), int), np.zeros((20, 30), int)
+    baseline[2:6, 2:20], baseline[12:16, 2:20] = 1, 2
+    follow_up[3:7, 4:22] = 5  # most of wrinkle 1
+    follow_up[15:18, 2:4] = 6  # 2 of wrinkle 2's 72 pixels: 2 / min(72, 6) = 33%
+    follow_up[15:16, 10:11] = 7  # a one-pixel region also in wrinkle 2: fewer pixels, not its match
+    assert match_wrinkles(baseline, follow_up) == {1: 5, 2: 6}
+    assert match_wrinkles(baseline, np.zeros_like(follow_up)) == {1: None, 2: None}
