@@ -155,11 +155,11 @@ def test_crossing_wrinkles_are_measured_each_on_its_own(angle, depths):
 
 def test_field_totals_of_two_known_wrinkles():
     """Ids from the top down, and the totals of wrinkles.json against the two wrinkles' geometry: count, total length (sum of
-    the exact lengths), length-weighted mean depth, the axial mean orientation (175 and 7
-    degrees average across 0, to 1.5 degrees weighted by length, not to 91), and the
+    the exact lengths), length-weighted mean depth, the axial mean orientation (175 and 30
+    degrees: 8.3 weighted by length, 12.5 unweighted, 102.5 as a plain mean), and the
     area fraction of the half-depth regions (the simulator's exact labels)."""
     wrinkles = (Wrinkle(depth_um=150.0, width_um=500.0, length_um=4000.0, orientation_deg=175.0, centre_um=(0.0, -1200.0), shape="U"),
-                Wrinkle(depth_um=90.0, width_um=400.0, length_um=3000.0, orientation_deg=7.0, centre_um=(0.0, 1200.0), shape="G"))
+                Wrinkle(depth_um=90.0, width_um=400.0, length_um=2600.0, orientation_deg=30.0, centre_um=(0.0, 1200.0), shape="G"))
     spec = SurfaceSpec(size_px=(300, 300), pixel_um=20.0, wrinkles=wrinkles, microrelief=False, roughness_rms_um=0.2, form_radius_mm=None)
     surface = make_surface(spec, seed=0)
     measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
@@ -172,7 +172,8 @@ def test_field_totals_of_two_known_wrinkles():
     assert totals["count"] == 2
     assert totals["total_length_mm"] == pytest.approx(lengths.sum(), rel=0.05)
     assert totals["mean_depth_um"] == pytest.approx((lengths * [t["mean_depth_um"] for t in truth]).sum() / lengths.sum(), rel=0.05)
-    weighted = np.degrees(np.arctan2((lengths * np.sin(np.radians([-10.0, 14.0]))).sum(), (lengths * np.cos(np.radians([-10.0, 14.0]))).sum())) / 2
+    doubled = np.radians(2 * np.array([175.0, 30.0]))
+    weighted = np.degrees(np.arctan2((lengths * np.sin(doubled)).sum(), (lengths * np.cos(doubled)).sum())) / 2
     assert (totals["mean_orientation_deg"] - weighted + 90) % 180 - 90 == pytest.approx(0, abs=1.5)
     assert totals["area_fraction"] == pytest.approx((surface.wrinkle_labels > 0).mean(), rel=0.10)
 
