@@ -33,8 +33,10 @@ docs: $(STAMP)
 bench: $(STAMP)
 	for script in bench/bench_*.py; do $(PY) $$script || exit 1; done
 
-# mutation testing of the core modules (mutmut, about 30 min): bench/results/mutation*.{json,md}
+# mutation testing: issue 25's seven planted bugs, then mutmut over the core modules (about 30 min):
+# bench/results/mutation*.{json,md}
 mutate: $(STAMP)
+	$(PY) bench/mutation_blind_spots.py
 	$(PY) bench/mutation.py
 
 clean:
