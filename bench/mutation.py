@@ -98,6 +98,10 @@ def _prepare(module):
     for part in ("src", "tests"):
         shutil.rmtree(folder / part, ignore_errors=True)
         shutil.copytree(ROOT / part, folder / part, ignore=ignore)  # copy2: mtimes kept, so mutmut reuses results
+    shutil.copy2(ROOT / "README.md", folder)  # a test reads the README's manifest example
+    shared = ROOT.parent / "shared"  # the tests look for ../shared beside the repository (here: beside mutants/)
+    if shared.is_dir() and not (folder / "shared").exists():
+        (folder / "shared").symlink_to(shared)
     pytest_options = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]
     selection = [*test_folders, "-m", "not slow", "-p", "no:cacheprovider"]
     (folder / "pyproject.toml").write_text(
@@ -105,6 +109,7 @@ def _prepare(module):
         f"markers = {json.dumps(pytest_options['markers'])}\n\n"
         "[tool.mutmut]\n"
         'source_paths = ["src/"]\n'
+        'also_copy = ["README.md"]\n'
         f"only_mutate = {json.dumps([pattern])}\n"
         f"pytest_add_cli_args_test_selection = {json.dumps(selection)}\n")
     return folder
