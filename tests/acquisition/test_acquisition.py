@@ -205,3 +205,35 @@ def test_a_mask_of_another_size_is_named(lambertian_acquisition):
         load_acquisition(folder)
     write_png(folder / "mask.png", np.where(np.arange(64)[None, :] < 32, 255, 0).astype(np.uint8) * np.ones((48, 1), np.uint8))
     np.testing.assert_array_equal(load_acquisition(folder).mask[0], np.arange(64) < 32)
+
+
+def test_dark_frame_and_flat_fields_are_applied(lambertian_acquisition):
+    """A dark frame of 1000 counts added to every image and named in the manifest is taken off
+    again; a flat-target image (here half of full scale, less the dark frame) divides an image
+    and l_z multiplies it (the LED's intensity and spot fall-off removed together)."""
+    from skintopo.formats import read_png
+
+    folder, _, _ = lambertian_acquisition
+    plain = load_acquisition(folder)
+    manifest = json.loads((folder / "acquisition.json").read_text())
+    for entry in manifest["images"]:
+        counts = read_png(folder / entry["file"]).astype(np.int64) + 1000
+        write_png(folder / entry["file"], counts.astype(np.uint16))
+    write_png(folder / "dark.png", np.full((48, 64), 1000, np.uint16))
+    write_png(folder / "flat.png", np.full((48, 64), 32768, np.uint16))
+    edit_manifest(folder, _set("dark", "dark.png"))
+    darkened = load_acquisition(folder)
+    np.testing.assert_allclose(darkened.bands["red"].images, plain.bands["red"].images, atol=2 / 65535)
+
+    def flat_on_red(manifest):
+        for entry in manifest["images"]:
+            if entry["band"] == "red":
+                entry.pop("intensity", None)
+                entry["flat"] = "flat.png"
+    edit_manifest(folder, flat_on_red)
+    flattened = load_acquisition(folder)
+    l_z = plain.bands["red"].lights[:, 2]
+    flat = (32768 - 1000) / 65535  # the flat target's image has the dark frame taken off too
+    np.testing.assert_allclose(flattened.bands["red"].images, plain.bands["red"].images / flat * l_z[:, None, None],
+                               rtol=1e-3, atol=3 / 65535)
+    np.testing.assert_allclose(flattened.bands["green"].images, plain.bands["green"].images, atol=2 / 65535)
