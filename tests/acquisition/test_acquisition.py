@@ -1,6 +1,7 @@
 """Reading acquisitions: colour channels, gamma and sRGB decoding, saturation, the bands asked for."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -237,3 +238,50 @@ def test_dark_frame_and_flat_fields_are_applied(lambertian_acquisition):
     np.testing.assert_allclose(flattened.bands["red"].images, plain.bands["red"].images / flat * l_z[:, None, None],
                                rtol=1e-3, atol=3 / 65535)
     np.testing.assert_allclose(flattened.bands["green"].images, plain.bands["green"].images, atol=2 / 65535)
+
+
+def _diligent_folder(folder, counts, lights, intensities=None):
+    folder.mkdir()
+    names = [f"{i + 1:03d}.png" for i in range(len(counts))]
+    for name, image in zip(names, counts):
+        write_png(folder / name, image)
+    (folder / "filenames.txt").write_text("\n".join(names) + "\n")
+    np.savetxt(folder / "light_directions.txt", lights)
+    if intensities is not None:
+        np.savetxt(folder / "light_intensities.txt", intensities)
+    return folder
+
+
+def test_diligent_layout_divides_by_each_lights_channel_intensity(tmp_path):
+    """A DiLiGenT folder (RGB 16-bit images, filenames.txt, light_directions.txt,
+    light_intensities.txt): each channel divided by its light's intensity for that channel,
+    white the mean of the three, pixel size assumed 1 um unless given; every inconsistency
+    named, a light that is not a unit vector too."""
+    rng = np.random.default_rng(5)
+    counts = rng.integers(1000, 30000, (4, 6, 8, 3)).astype(np.uint16)
+    lights = np.array([[0.6, 0.0, 0.8], [0.0, 0.6, 0.8], [-0.6, 0.0, 0.8], [0.0, -0.6, 0.8]])
+    intensities = np.array([[1.0, 2.0, 4.0], [0.5, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]])
+    folder = _diligent_folder(tmp_path / "ball", counts, lights, intensities)
+    acquisition = load_acquisition(folder)
+    assert acquisition.layout == "diligent" and acquisition.pixel_um == 1.0 and acquisition.pixel_um_assumed
+    expected = counts / 65535 / intensities[:, None, None, :]
+    for band, channel in (("red", 0), ("green", 1), ("blue", 2)):
+        np.testing.assert_allclose(acquisition.bands[band].images, expected[..., channel], rtol=1e-6)
+    np.testing.assert_allclose(acquisition.bands["white"].images, expected.mean(axis=-1), rtol=1e-6)
+    np.testing.assert_allclose(acquisition.bands["red"].lights, lights)
+    assert load_acquisition(folder, pixel_um=5.0).pixel_um == 5.0 and sorted(load_acquisition(folder, bands=["blue"]).bands) == ["blue"]
+    for name, content, message in (
+        ("light_intensities.txt", "1 1 1\n1 1 1\n1 1 1\n", "light_intensities.txt: 3 lines for 4 images in filenames.txt"),
+        ("light_intensities.txt", "1 1 1\n1 1 1\n1 0 1\n1 1 1\n", "light_intensities.txt: intensities must be positive"),
+        ("light_directions.txt", "0 0\n0 0\n0 0\n0 0\n", "light_directions.txt: expected 3 numbers per line, got 2"),
+        ("light_directions.txt", "0 0 1\n0 0 1\n0 0 1\nx y z\n", "light_directions.txt: not a table of numbers"),
+        ("light_directions.txt", "0.6 0 0.8\n0 0.6 0.8\n-0.6 0 0.8\n0 0.3 1\n", "line 4 \\(004.png\\): light direction .* is not a unit vector"),
+    ):
+        broken = tmp_path / f"broken_{name}_{len(content)}"
+        shutil.copytree(folder, broken)
+        (broken / name).write_text(content)
+        with pytest.raises(AcquisitionError, match=message):
+            load_acquisition(broken)
+    grey = _diligent_folder(tmp_path / "grey", counts[..., 0], lights)
+    with pytest.raises(AcquisitionError, match="DiLiGenT images are RGB; this one has a single channel"):
+        load_acquisition(grey)

@@ -9,7 +9,14 @@ import scipy.stats
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.texture import Parameter, measure_texture, parameter_note, parameters_by_name
-from skintopo.texture.areal import MaterialRatio, autocorrelation, functional_parameters, height_parameters, hybrid_parameters, spatial_parameters
+from skintopo.texture.areal import (
+    MaterialRatio,
+    autocorrelation,
+    functional_parameters,
+    height_parameters,
+    hybrid_parameters,
+    spatial_parameters,
+)
 from skintopo.texture.fractal import ESTIMATORS, fractal_dimension, power_spectrum
 from skintopo.texture.profile import line_profile_parameters, profile_parameters
 from tests.helpers.analytic import fbm
