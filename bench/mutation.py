@@ -1,6 +1,7 @@
 """Mutation testing of the core modules with mutmut (PyPI), each module against its own fast tests.
 
-Run with ``make mutate`` (or ``python bench/mutation.py [--all] [MODULE ...]``). For each module,
+Run with ``make mutate`` (or ``python bench/mutation.py [--all] [--update] [MODULE ...]``; ``--update``
+runs only the modules named and rewrites the results of all from what mutmut kept). For each module,
 ``build/mutation/MODULE/`` gets a copy of ``src/`` and ``tests/`` and a ``pyproject.toml`` that
 tells mutmut to mutate that module only and to run the module's test folders without the slow
 tests; mutmut keeps its results there, so a second run retests only what changed.
@@ -163,15 +164,20 @@ def wilson_interval(successes, n, z=1.959964):
     return centre - half, centre + half
 
 
-def run_module(python, module, equivalent, sample=True):
-    """Mutate one module, run its tests against the mutants; counts and the surviving mutants."""
+def run_module(python, module, sample=True):
+    """Mutate one module and run its tests against the mutants (mutmut keeps the results in the
+    module's folder); the seconds it took."""
     folder = _prepare(module)
     start = time.perf_counter()
     with open(folder / "mutmut.log", "w") as log:
         subprocess.run([str(python), "-m", "mutmut", "run", "--max-children", str(os.cpu_count() or 2),
                         *(SAMPLE if sample else [])], cwd=folder, stdout=log, stderr=subprocess.STDOUT, check=True)
-    seconds = time.perf_counter() - start
-    listing = subprocess.run([str(python), "-c", _LIST_MUTANTS], cwd=folder, capture_output=True, text=True,
+    return time.perf_counter() - start
+
+
+def tally_module(python, module, equivalent, seconds, sample=True):
+    """A module's counts and surviving mutants from the results mutmut kept in its folder."""
+    listing = subprocess.run([str(python), "-c", _LIST_MUTANTS], cwd=WORK / module, capture_output=True, text=True,
                              check=True)
     counts = {"killed": 0, "timeout": 0, "survived": 0, "no tests": 0, "suspicious": 0, "equivalent": 0}
     survivors = []
@@ -208,6 +214,8 @@ def _write_survivors(survivors_by_module):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--all", action="store_true", help="every mutant, not the fixed fifth (several hours)")
+    parser.add_argument("--update", action="store_true",
+                        help="run only the modules named, and rewrite the results of every module from the kept ones")
     parser.add_argument("modules", nargs="*", help=f"modules to mutate (default: all of {', '.join(CORE_MODULES)})")
     args = parser.parse_args(argv)
     unknown = sorted(set(args.modules) - set(CORE_MODULES))
@@ -216,21 +224,27 @@ def main(argv=None):
     modules = args.modules or list(CORE_MODULES)
     python = _mutmut_python()
     equivalent = _equivalent_mutants()
-    rows, survivors_by_module = [], {}
-    start = time.perf_counter()
+    results = ROOT / "bench" / "results" / "mutation.json"
+    previous = {row["module"]: row["seconds"] for row in json.loads(results.read_text())["modules"]} if args.update else {}
+    seconds = {}
     for module in modules:
-        row, survivors = run_module(python, module, equivalent, sample=not args.all)
+        seconds[module] = run_module(python, module, sample=not args.all)
+        print(f"{module}: {seconds[module]:.0f} s", flush=True)
+    reported = list(CORE_MODULES) if args.update or modules == list(CORE_MODULES) else modules
+    rows, survivors_by_module = [], {}
+    for module in reported:
+        row, survivors_by_module[module] = tally_module(python, module, equivalent, seconds.get(module, previous.get(module, float("nan"))),
+                                                        sample=not args.all)
         print(json.dumps(row), flush=True)
         rows.append(row)
-        survivors_by_module[module] = survivors
     total = {key: sum(row[key] for row in rows) for key in rows[0] if key not in ("module", "score", "score_95", "seconds")}
     detected = total["killed"] + total["timeout"]
     judged = detected + total["survived"] + total["no tests"] + total["suspicious"]
     result = {"tool": "mutmut 3.8.1", "command": "make mutate" + (" (bench/mutation.py --all)" if args.all else ""),
               "mutants": "all" if args.all else "the fixed fifth numbered ..0 and ..5 in each function", "modules": rows,
               "total": {**total, "score": detected / judged, "score_95": list(wilson_interval(detected, judged)),
-                        "seconds": round(time.perf_counter() - start, 1)}}
-    if modules == list(CORE_MODULES):
+                        "seconds": round(sum(row["seconds"] for row in rows), 1)}}
+    if reported == list(CORE_MODULES):
         _write_survivors(survivors_by_module)
         write_result("mutation", result)
     else:

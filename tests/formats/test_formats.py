@@ -46,8 +46,10 @@ def test_files_are_readable_by_the_other_packages(tmp_path):
     sdf = sdfio.read(tmp_path / "h.sdf")
     np.testing.assert_allclose(sdf.data, height.z * 1e-6, equal_nan=True)
     assert sdf.header.x_scale == pytest.approx(10e-6) and sdf.header.y_scale == pytest.approx(12.5e-6)
-    field = gwyfile.load(str(tmp_path / "h.gwy"))["/0/data"]
-    assert field.data.shape == (30, 40) and field["xreal"] == pytest.approx(40 * 10e-6)
+    container = gwyfile.load(str(tmp_path / "h.gwy"))
+    field = container["/0/data"]
+    assert field.data.shape == (30, 40) and field["xreal"] == pytest.approx(40 * 10e-6) and field["yreal"] == pytest.approx(30 * 12.5e-6)
+    assert field["si_unit_xy"].unitstr == "m" and field["si_unit_z"].unitstr == "m" and container["/0/data/title"] == "height"
 
 
 def test_meshes(tmp_path):
@@ -161,3 +163,20 @@ def _tiff_round_trip(height):
     with tempfile.TemporaryDirectory() as folder:
         height.save(Path(folder) / "h.tif")
         return HeightMap.load(Path(folder) / "h.tif")
+
+
+def test_a_gwy_file_in_other_units_is_refused_and_readers_return_floats(tmp_path):
+    """A .gwy field whose heights are not in metres (here nm) is refused by name; every reader
+    returns float64 heights with NaN where data are missing."""
+    from gwyfile.objects import GwyContainer, GwyDataField, GwySIUnit
+
+    from skintopo.formats import read_height
+
+    field = GwyDataField(np.zeros((4, 5)), xreal=5e-5, yreal=4e-5, si_unit_xy=GwySIUnit(unitstr="m"), si_unit_z=GwySIUnit(unitstr="nm"))
+    GwyContainer({"/0/data": field}).tofile(str(tmp_path / "nm.gwy"))
+    with pytest.raises(SkinTopoError, match="nm.gwy: heights in 'nm', expected metres"):
+        read_height(tmp_path / "nm.gwy")
+    for suffix in (".tif", ".gwy", ".x3p"):
+        sample().save(tmp_path / f"h{suffix}")
+        z, _ = read_height(tmp_path / f"h{suffix}")
+        assert z.dtype == np.float64 and np.isnan(z[4, 5]) and np.isfinite(z).sum() == z.size - 1
