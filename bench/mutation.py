@@ -30,6 +30,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -129,11 +130,14 @@ def _equivalent_mutants():
     def reason(function, original, mutant):
         if (function, original, mutant) in single:
             return single[function, original, mutant]
-        def without(pattern, line):  # the line without the pattern's matches, blanks and trailing commas
-            return re.sub(r"\s+", "", pattern.sub("", line)).replace(",)", ")")
         return next((text for pattern, text in rules
-                     if pattern.search(original) and without(pattern, original) == without(pattern, mutant)), None)
+                     if pattern.search(original) and _without(pattern, original) == _without(pattern, mutant)), None)
     return reason
+
+
+def _without(pattern, line):
+    """The line without the pattern's matches, blanks and trailing commas."""
+    return re.sub(r"\s+", "", pattern.sub("", line)).replace(",)", ")")
 
 
 def _changed_lines(diff):
@@ -171,8 +175,17 @@ def run_module(python, module, sample=True):
     folder = _prepare(module)
     start = time.perf_counter()
     with open(folder / "mutmut.log", "w") as log:
-        subprocess.run([str(python), "-m", "mutmut", "run", "--max-children", str(os.cpu_count() or 2),
-                        *(SAMPLE if sample else [])], cwd=folder, stdout=log, stderr=subprocess.STDOUT, check=True)
+        # its own process group, ended with this script (an interrupt or SIGTERM leaves no mutmut workers behind)
+        mutmut = subprocess.Popen([str(python), "-m", "mutmut", "run", "--max-children", str(os.cpu_count() or 2),
+                                   *(SAMPLE if sample else [])], cwd=folder, stdout=log, stderr=subprocess.STDOUT,
+                                  start_new_session=True)
+        try:
+            if mutmut.wait():
+                raise SystemExit(f"mutmut failed on {module}: see {folder / 'mutmut.log'}")
+        finally:
+            if mutmut.poll() is None:
+                os.killpg(mutmut.pid, signal.SIGKILL)
+                mutmut.wait()
     return time.perf_counter() - start
 
 
@@ -193,11 +206,14 @@ def tally_module(python, module, equivalent, seconds, sample=True):
                 status = "equivalent"
             survivors.append({**row, "function": function, "status": status, "reason": reason})
         counts[status] = counts.get(status, 0) + 1
+    return {"module": module, **counts, **_score(counts), "seconds": round(seconds, 1)}, survivors
+
+
+def _score(counts):
+    """Killed (timeouts included) over every mutant judged, equivalent ones set aside, with its 95% interval."""
     detected = counts["killed"] + counts["timeout"]
     judged = detected + counts["survived"] + counts["no tests"] + counts["suspicious"]
-    low, high = wilson_interval(detected, judged)
-    return {"module": module, **counts, "score": detected / judged if judged else float("nan"),
-            "score_95": [low, high], "seconds": round(seconds, 1)}, survivors
+    return {"score": detected / judged if judged else float("nan"), "score_95": list(wilson_interval(detected, judged))}
 
 
 def _write_survivors(survivors_by_module):
@@ -223,6 +239,7 @@ def main(argv=None):
     if unknown:
         parser.error(f"not a core module: {', '.join(unknown)}")
     modules = args.modules or list(CORE_MODULES)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # SIGTERM unwinds like an interrupt: mutmut is stopped too
     python = _mutmut_python()
     equivalent = _equivalent_mutants()
     results = ROOT / "bench" / "results" / "mutation.json"
@@ -239,12 +256,9 @@ def main(argv=None):
         print(json.dumps(row), flush=True)
         rows.append(row)
     total = {key: sum(row[key] for row in rows) for key in rows[0] if key not in ("module", "score", "score_95", "seconds")}
-    detected = total["killed"] + total["timeout"]
-    judged = detected + total["survived"] + total["no tests"] + total["suspicious"]
     result = {"tool": "mutmut 3.8.1", "command": "make mutate" + (" (bench/mutation.py --all)" if args.all else ""),
               "mutants": "all" if args.all else "the fixed fifth numbered ..0 and ..5 in each function", "modules": rows,
-              "total": {**total, "score": detected / judged, "score_95": list(wilson_interval(detected, judged)),
-                        "seconds": round(sum(row["seconds"] for row in rows), 1)}}
+              "total": {**total, **_score(total), "seconds": round(sum(row["seconds"] for row in rows), 1)}}
     if reported == list(CORE_MODULES):
         _write_survivors(survivors_by_module)
         write_result("mutation", result)

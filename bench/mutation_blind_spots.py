@@ -54,7 +54,8 @@ def main():
                                  cwd=copy, env=environment, capture_output=True, text=True)
         failed = next((line for line in run.stdout.splitlines() if line.startswith("FAILED")), None)
         survived += run.returncode == 0
-        print(f"{number}. {bug}: " + (f"KILLED by {failed.split()[1]}" if run.returncode else "SURVIVED"), flush=True)
+        verdict = "SURVIVED" if run.returncode == 0 else f"KILLED by {failed.split()[1]}" if failed else f"KILLED (pytest exit {run.returncode})"
+        print(f"{number}. {bug}: {verdict}", flush=True)
     sys.exit(1 if survived else 0)
 
 

@@ -149,20 +149,13 @@ def test_writes_are_atomic_and_create_folders(tmp_path):
     assert list((tmp_path / "c").iterdir()) == []
 
 
-def test_a_flat_map_survives_the_16_bit_tiff():
+def test_a_flat_map_survives_the_16_bit_tiff(tmp_path):
     z = np.full((6, 7), 42.0)
     z[0, 0] = np.nan
-    back = _tiff_round_trip(HeightMap(z, 5.0))
+    HeightMap(z, 5.0).save(tmp_path / "h.tif")
+    back = HeightMap.load(tmp_path / "h.tif")
     np.testing.assert_array_equal(np.isnan(back.z), np.isnan(z))
     np.testing.assert_allclose(back.z[1:], 42.0)
-
-
-def _tiff_round_trip(height):
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as folder:
-        height.save(Path(folder) / "h.tif")
-        return HeightMap.load(Path(folder) / "h.tif")
 
 
 def test_a_gwy_file_in_other_units_is_refused_and_readers_return_floats(tmp_path):
