@@ -75,15 +75,18 @@ def read_study(path):
         raise SkinTopoError(f"{path}: no such study file")
     try:
         with open(path, newline="", encoding="utf-8") as stream:
-            rows = list(csv.DictReader(stream))
+            reader = csv.DictReader(stream)
+            rows = list(reader)
+            columns = reader.fieldnames or []
     except (UnicodeDecodeError, csv.Error) as error:
         raise SkinTopoError(f"{path}: not a readable CSV file ({error})") from None
     problems = []
     required = ("subject", "visit", "region", "acquisition")
-    columns = set(rows[0]) if rows else set()
     missing = [c for c in required if c not in columns]
-    if not rows or missing:
-        raise SkinTopoError(f"{path}: the study needs the columns {list(required)} (missing {missing or 'all rows'})")
+    if missing:
+        raise SkinTopoError(f"{path}: the study needs the columns {list(required)} (missing {missing})")
+    if not rows:
+        raise SkinTopoError(f"{path}: the study lists no acquisition (a header line only)")
     items, seen, first_visit = [], set(), {}
     for number, row in enumerate(rows, start=2):  # line 1 is the header
         values = {c: (row.get(c) or "").strip() for c in (*required, "baseline", "repeat")}
@@ -154,9 +157,9 @@ def _finished(folder, stamp):
 
 
 def run_task(kind, inputs, out, stamp, options):
-    """One item, in a worker: measure an acquisition or compare two result folders into
-    ``out`` (staged, with its stamp inside). Returns (status, message); never raises for a
-    bad input."""
+    """One item, in a worker: measure an acquisition (``kind`` "measure") or compare two
+    result folders ("compare") into ``out`` (staged, with its stamp inside). Returns
+    ("done", "") or ("failed", message); never raises for a bad input."""
     from skintopo.outputs import staged_output_folder
     from skintopo.pipeline import compare_results, measure_acquisition
     from skintopo.results import write_comparison, write_measurement
@@ -165,8 +168,10 @@ def run_task(kind, inputs, out, stamp, options):
     try:
         if kind == "measure":
             result = measure_acquisition(inputs[0], options)
-        else:
+        elif kind == "compare":
             result = compare_results(*inputs, segmentation=options.segmentation, wrinkles=options.wrinkles)
+        else:
+            raise ValueError(f"unknown kind of item {kind!r} (measure or compare)")
         with staged_output_folder(out, overwrite=True) as staging:
             if kind == "measure":
                 write_measurement(staging, result, title=f"skintopo: {Path(inputs[0]).name}")
@@ -448,7 +453,8 @@ def write_tables(study, out, failures, *, options=None):
                           **{k: row[k] for k in ("parameter", "baseline", "follow_up", "change", "change_percent")}}
                          for row in read_change_rows(changes)]
     long = pd.DataFrame(long_rows, columns=["subject", "visit", "region", "parameter", "value", "unit"])
-    wide = long.pivot_table(index=["subject", "visit", "region"], columns="parameter", values="value", aggfunc="first").reset_index()
+    # pivot, not pivot_table: a parameter that is NaN at every visit keeps its column
+    wide = long.pivot(index=["subject", "visit", "region"], columns="parameter", values="value").reset_index()
     wide.columns.name = None
     long = long.sort_values(["subject", "region", "visit", "parameter"]).reset_index(drop=True)
     wide = wide.sort_values(["subject", "region", "visit"]).reset_index(drop=True)

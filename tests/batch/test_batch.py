@@ -20,7 +20,7 @@ import pytest
 import skintopo.batch
 from skintopo.batch import run_study
 from skintopo.errors import SkinTopoError
-from skintopo.pipeline import MeasureOptions, SegmentationOptions
+from skintopo.pipeline import HeightOptions, MeasureOptions, SegmentationOptions
 from tests.helpers import browser
 from tests.helpers.study import write_study
 
@@ -339,22 +339,188 @@ def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(t
             shutil.copy(shot, Path(os.environ["SKINTOPO_KEEP_SCREENSHOTS"]) / shot.name)
 
 
-def test_a_two_visit_study_in_one_process(tmp_path):
-    """The whole study path in the fast tests (one worker, 2 visits of 112 x 112 px): 2 measures
-    and 1 compare computed, the tables written (results.csv one row per visit, changes.csv
-    follow-up - baseline), a second run skips all three, a changed acquisition recomputes its
-    measure and the compare that uses it, and nothing is left half-written."""
-    study_path = write_study(tmp_path / "study", ["S1"], size_px=112, depth_factors=(1.0, 0.8))
-    out = tmp_path / "out"
-    counts, _, failures = run_study(study_path, out, workers=1)
-    assert failures == [] and counts == {"computed": 3, "skipped": 0, "failed": 0}
-    results = pd.read_csv(out / "results.csv")
-    assert list(results.visit) == ["V1", "V2"] and (results.subject == "S1").all()
-    changes = pd.read_csv(out / "changes.csv")
-    assert set(changes.visit) == {"V2"} and set(changes.baseline_visit) == {"V1"}
-    np.testing.assert_allclose(changes.change, changes.follow_up - changes.baseline, rtol=1e-12)
-    assert run_study(study_path, out, workers=1)[0] == {"computed": 0, "skipped": 3, "failed": 0}
-    manifest = study_path.parent / "S1_v2" / "acquisition.json"
-    manifest.write_text(manifest.read_text().replace("synthetic skin", "synthetiC skin"))
-    assert run_study(study_path, out, workers=1)[0] == {"computed": 2, "skipped": 1, "failed": 0}
+def test_a_study_on_an_in_process_dask_cluster(tmp_path):
+    """The whole study path in the fast tests, on a Dask cluster inside this process (so the
+    items run in this interpreter): V1 with a repeat capture, V2, and V3 whose acquisition is
+    broken. Every table's columns and rows, the stamps against the documented fingerprint, the
+    failure recorded with paths relative to the study, the summary, a rerun that skips
+    everything, a changed acquisition and a corrupted result that recompute exactly their items,
+    and a SIGTERM that stops the study with what was done."""
+    distributed = pytest.importorskip("distributed")
+    study_path = write_study(tmp_path / "study", ["S1"], size_px=64, depth_factors=(1.0, 0.8, 0.8), repeat_first=True)
+    (study_path.parent / "S1_v3" / "red_01.png").write_bytes(b"broken")
+    out = tmp_path / "results" / "trial" / "out"  # outside the study, two new folders deep
+    options = MeasureOptions(height=HeightOptions(method="blue"), segmentation=SegmentationOptions(min_depth_um=8.0))
+    settings = {"skintopo_version": skintopo.batch.__version__, "options": options.as_dict()}
+    seen = []
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        def run(**extra):
+            return run_study(study_path, out, options=options, scheduler=cluster.scheduler_address,
+                             progress=lambda item, kind, status: seen.append((item.visit, kind, status)), **extra)
+
+        counts, paths, failures = run()
+        assert counts == {"computed": 5, "skipped": 0, "failed": 1}  # 4 measures (1 failed), 1 compare, 1 repeat pair
+        assert sorted(seen) == [("V1", "measure", "done"), ("V1", "measure", "done"), ("V1", "repeat", "done"),
+                                ("V2", "compare", "done"), ("V2", "measure", "done"), ("V3", "measure", "failed")]
+        assert [(f["subject"], f["visit"], f["region"], f["step"]) for f in failures] == [("S1", "V3", "forehead", "measure")]
+        assert failures[0]["error"].startswith("S1_v3/acquisition.json: 1 problem") and "- S1_v3/red_01.png: not a readable PNG" in failures[0]["error"] and str(tmp_path) not in failures[0]["error"]
+        assert sorted(paths) == ["changes.csv", "failures.csv", "results.csv", "results.parquet", "results_long.csv",
+                                 "statistics.csv", "summary.html", "summary.json"]
+        # each stamp is the fingerprint of its inputs with the run's settings (the module's definition)
+        items, measured = out / "items" / "S1" / "forehead", {}
+        for visit, folder in (("V1", "S1_v1"), ("V1~repeat", "S1_v1_repeat"), ("V2", "S1_v2")):
+            stamp = json.loads((items / visit / "batch.json").read_text())
+            assert stamp == {"fingerprint": skintopo.batch.fingerprint([study_path.parent / folder], settings | {"kind": "measure"}),
+                             "skintopo_version": skintopo.batch.__version__}
+            summary = json.loads((items / visit / "summary.json").read_text())
+            assert summary["source"]["height"] == "blue band" and summary["options"]["segmentation"]["min_depth_um"] == 8.0
+            measured[visit] = summary
+        for kind, before, after in (("changes", "V1", "V2"), ("repeats", "V1", "V1~repeat")):
+            stamp = json.loads((out / kind / "S1" / "forehead" / after.split("~")[0] / "batch.json").read_text())["fingerprint"]
+            inputs = [items / before / "height.x3p", items / after / "height.x3p"]
+            assert stamp == skintopo.batch.fingerprint(inputs, settings | {"kind": "compare"})
+        assert not (items / "V3").exists() and not (out / "changes" / "S1" / "forehead" / "V3").exists()
+
+        long = pd.read_csv(out / "results_long.csv")
+        assert list(long.columns) == ["subject", "visit", "region", "parameter", "value", "unit"]
+        assert list(long.columns) == list(pd.read_parquet(out / "results.parquet").columns)
+        pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), long.fillna({"unit": ""}), check_dtype=False)  # CSV reads a unitless "" as NaN
+        assert set(long.visit) == {"V1", "V2"} and long.groupby("visit").size().nunique() == 1
+        sa = long[long.parameter == "Sa"].set_index("visit")
+        assert sa.unit.tolist() == ["um", "um"]
+        results = pd.read_csv(out / "results.csv")
+        assert list(results.columns[:3]) == ["subject", "visit", "region"] and list(results.visit) == ["V1", "V2"]
+        assert set(results.columns[3:]) == set(long.parameter)
+        for visit in ("V1", "V2"):  # results.csv is results_long.csv, one row per visit
+            row = results[results.visit == visit].iloc[0]
+            expected = long[long.visit == visit].set_index("parameter").value
+            np.testing.assert_allclose(row[expected.index].to_numpy(float), expected.to_numpy(float), rtol=1e-12)
+        changes = pd.read_csv(out / "changes.csv")
+        assert list(changes.columns) == ["subject", "region", "baseline_visit", "visit", "parameter", "baseline", "follow_up",
+                                         "change", "change_percent"]
+        assert set(changes.visit) == {"V2"} and set(changes.baseline_visit) == {"V1"} and list(changes.parameter) == sorted(changes.parameter)
+        np.testing.assert_allclose(changes.change, changes.follow_up - changes.baseline, rtol=1e-12)
+        sa_change = changes[changes.parameter == "Sa"].iloc[0]  # the compare of the registered visits, not the difference of the fields
+        assert sa_change.baseline == pytest.approx(sa.value["V1"], rel=0.2) and sa_change.follow_up == pytest.approx(sa.value["V2"], rel=0.2)
+        statistics = pd.read_csv(out / "statistics.csv")
+        assert list(statistics.columns[:4]) == ["region", "baseline_visit", "visit", "parameter"] and "Unnamed: 0" not in statistics.columns
+        sa_statistics = statistics[statistics.parameter == "Sa"].iloc[0]
+        assert (sa_statistics.subjects, sa_statistics.repeat_pairs) == (1, 1) and sa_statistics.mean_change == pytest.approx(sa_change.change)
+        failure_table = pd.read_csv(out / "failures.csv")
+        assert list(failure_table.columns) == ["subject", "visit", "region", "step", "error"]
+        assert failure_table.iloc[0].tolist() == [failures[0][k] for k in ("subject", "visit", "region", "step", "error")]
+        summary_text = (out / "summary.json").read_text()
+        summary = json.loads(summary_text)
+        assert len(summary_text.splitlines()) > 5  # indented for a reader
+        assert {k: summary[k] for k in ("skintopo_version", "items", "measured", "failed", "options")} == {
+            "skintopo_version": skintopo.batch.__version__, "items": 3, "measured": 2, "failed": 1, "options": options.as_dict()}
+        assert summary["detection_limit"].startswith("ISO 5725-6 repeatability limit r = 2.8 s_r")
+        page = (out / "summary.html").read_text()
+        assert 'href="items/S1/forehead/V1/report.html"' in page and 'href="items/S1/forehead/V2/report.html"' in page
+
+        seen.clear()
+        assert run()[0] == {"computed": 0, "skipped": 5, "failed": 1}  # the broken visit is tried again
+        (items / ".V2.partial").mkdir()  # a staging folder left by a killed run
+        manifest = study_path.parent / "S1_v2" / "acquisition.json"  # one byte changed, same size
+        manifest.write_text(manifest.read_text().replace("synthetic skin", "synthetiC skin"))
+        assert run()[0] == {"computed": 2, "skipped": 3, "failed": 1}  # V2 and its compare
+        assert not (items / ".V2.partial").exists()
+        height = items / "V1~repeat" / "height.x3p"  # a result corrupted on disk: its comparison fails, naming it
+        height.write_bytes(b"not an x3p file")
+        counts, _, failures = run()
+        assert counts == {"computed": 0, "skipped": 4, "failed": 2}
+        repeat_failure = [f for f in failures if f["step"] == "repeat"][0]
+        assert "items/S1/forehead/V1~repeat/height.x3p" in repeat_failure["error"] and str(tmp_path) not in repeat_failure["error"]
+        assert not (out / "repeats" / "S1" / "forehead" / "V1").exists()  # no stale result beside a failure
+        assert pd.read_csv(out / "statistics.csv").repeat_pairs.fillna(0).eq(0).all()
+
+        seen.clear()
+        with pytest.raises(skintopo.batch.BatchInterrupted) as stopped:  # SIGTERM as the first item finishes
+            run_study(study_path, out, options=options, scheduler=cluster.scheduler_address, force=True,
+                      progress=lambda item, kind, status: os.kill(os.getpid(), signal.SIGTERM))
+    assert stopped.value.signal_number == signal.SIGTERM and set(stopped.value.counts) == {"computed", "skipped", "failed"}
+    assert_items_complete(out)
     assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.partial"))
+
+
+def test_a_local_worker_ignores_ctrl_c_keeps_to_its_blas_threads_and_dies_with_its_parent(monkeypatch):
+    """``_worker_start`` run here (it runs in each worker): SIGINT ignored, BLAS limited, the
+    kernel's parent-death signal armed as SIGKILL (read back with PR_GET_PDEATHSIG), and the
+    watch thread exits when the parent pid changes."""
+    import ctypes
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    previous_handler = signal.getsignal(signal.SIGINT)
+    libc = ctypes.CDLL(None, use_errno=True)
+    exits = []
+
+    def fake_exit(status):
+        exits.append(status)
+        if threading.current_thread() is threading.main_thread():
+            raise SystemExit
+        threading.Event().wait()  # the watch thread stops here for good instead of ending this process
+
+    monkeypatch.setattr(os, "_exit", fake_exit)
+    try:
+        skintopo.batch._worker_start(os.getppid(), 1)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        if blas:
+            assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == {1}
+        armed = ctypes.c_int(-1)
+        assert libc.prctl(2, ctypes.byref(armed)) == 0 and armed.value == signal.SIGKILL  # PR_GET_PDEATHSIG
+        assert exits == []
+        real_parent = os.getppid()
+        monkeypatch.setattr(os, "getppid", lambda: real_parent + 1)  # the parent has died
+        deadline = time.time() + 3
+        while not exits and time.time() < deadline:
+            time.sleep(0.05)
+        assert exits == [1]
+        with pytest.raises(SystemExit):  # a parent already gone at start: exit at once
+            skintopo.batch._worker_start(real_parent, None)
+    finally:
+        signal.signal(signal.SIGINT, previous_handler)
+        libc.prctl(1, 0)  # disarm the parent-death signal in this test process
+        if blas:
+            threadpool_limits(limits=max(blas), user_api="blas")
+
+
+def test_local_runner_stops_its_workers_and_records_a_lost_worker(tmp_path):
+    """Closing after an interruption kills a busy worker at once; closing normally waits
+    for the workers to exit; a worker killed in the middle of an item is recorded as lost."""
+    import multiprocessing
+
+    runner = skintopo.batch.LocalRunner(1)
+    busy = runner.pool.submit(time.sleep, 60)
+    deadline = time.time() + 30
+    while not multiprocessing.active_children() and time.time() < deadline:
+        time.sleep(0.05)
+    workers = [p.pid for p in multiprocessing.active_children()]
+    started = time.time()
+    runner.close(interrupted=True)
+    assert time.time() - started < 5 and busy.done()
+    assert_gone(workers)
+    runner = skintopo.batch.LocalRunner(2)
+    assert runner.pool.submit(os.getpid).result(timeout=60) != os.getpid()
+    runner.close()
+    assert multiprocessing.active_children() == []
+
+    study_path = tmp_path / "study" / "study.csv"
+    (tmp_path / "study" / "a").mkdir(parents=True)
+    study_path.write_text("subject,visit,region,acquisition\nS1,V1,fh,a\n")
+    seen = []
+
+    def kill_the_worker():
+        deadline = time.time() + 30
+        while not multiprocessing.active_children() and time.time() < deadline:
+            time.sleep(0.01)
+        for process in multiprocessing.active_children():
+            os.kill(process.pid, signal.SIGKILL)
+
+    killer = threading.Thread(target=kill_the_worker)
+    killer.start()
+    counts, _, failures = run_study(study_path, tmp_path / "out", progress=lambda item, kind, status: seen.append(status))
+    killer.join()
+    assert counts == {"computed": 0, "skipped": 0, "failed": 1} and seen == ["failed"]
+    assert failures[0]["error"].startswith("the worker running this item was lost (BrokenProcessPool")

@@ -60,3 +60,31 @@ def test_study_validation_reports_every_problem(tmp_path):
     message = str(error.value)
     assert "4 problem(s)" in message and "listed twice" in message and "'missing' not found" in message
     assert "empty subject" in message and "baseline visit 'V1' of subject S2" in message
+
+
+def test_study_files_without_rows_or_columns_and_what_a_valid_one_gives(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a again").mkdir()
+    header_only = tmp_path / "header.csv"
+    header_only.write_text("subject,visit,region,acquisition\n")
+    with pytest.raises(SkinTopoError, match=r"header.csv: the study lists no acquisition \(a header line only\)"):
+        read_study(header_only)
+    no_region = tmp_path / "no-region.csv"
+    no_region.write_text("subject,visit,acquisition\nS1,V1,a\n")
+    with pytest.raises(SkinTopoError, match=r"needs the columns \['subject', 'visit', 'region', 'acquisition'\] \(missing \['region'\]\)"):
+        read_study(no_region)
+    problems = tmp_path / "problems.csv"
+    problems.write_text("subject,visit,region,acquisition\nS1,,,a\nAnna,V1,cheek,a\nAnna,V1,cheek,a\n")
+    with pytest.raises(SkinTopoError) as error:
+        read_study(problems)
+    assert "problems.csv: line 2: empty visit, region" in str(error.value)
+    assert "problems.csv: line 4: subject Anna region cheek visit V1 listed twice" in str(error.value)
+    study_path = tmp_path / "study.csv"
+    study_path.write_text("subject,visit,region,acquisition,baseline,repeat\n"
+                          "Zoë,V1,cheek,a,,a again\nZoë,V2,cheek, a ,V1,\nZoë,V3,cheek,a,,\n", encoding="utf-8")
+    study = read_study(study_path)
+    assert [(i.subject, i.visit, i.region, i.baseline) for i in study] == [("Zoë", "V1", "cheek", None), ("Zoë", "V2", "cheek", "V1"),
+                                                                           ("Zoë", "V3", "cheek", "V1")]
+    assert [i.acquisition for i in study] == [(tmp_path / "a").resolve()] * 3
+    assert [i.repeat for i in study] == [(tmp_path / "a again").resolve(), None, None]
+    assert study[0].key == ("Zo_", "cheek", "V1") and study[0].repeat_key == ("Zo_", "cheek", "V1~repeat")
