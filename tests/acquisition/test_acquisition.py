@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,6 +103,7 @@ MANIFEST_PROBLEMS = [
     (_set("images", 2, "band", "purple"), "images[2] (red_02.png): field 'band' must be one of ['red', 'green', 'blue', 'white'], got 'purple'"),
     (_set("images", 0, "led", "north"), "images[0] (red_00.png): field 'led' needs a 'device' file in the manifest"),
     (_set("images", 3, "light", [0.0, 1.0]), "images[3] (red_03.png): field 'light' must be a list of 3 numbers (unit vector x, y, z)"),
+    (_set("images", 0, "light", [0.0, 0.0, 2.0]), "acquisition.json: images[0] (red_00.png): light direction [0.0, 0.0, 2.0] is not a unit vector"),
     (_set("images", 3, "light", [0.0, True, 1.0]), "images[3] (red_03.png): field 'light' must be a list of 3 numbers (unit vector x, y, z)"),
     (_set("images", 4, "intensity", -2), "images[4] (green_00.png): field 'intensity' must be a positive number, got -2"),
     (_set("images", 5, "wavelength_nm", 0), "images[5] (green_01.png): field 'wavelength_nm' must be a positive number, got 0"),
@@ -238,6 +240,7 @@ def test_dark_frame_and_flat_fields_are_applied(lambertian_acquisition):
     np.testing.assert_allclose(flattened.bands["red"].images, plain.bands["red"].images / flat * l_z[:, None, None],
                                rtol=1e-3, atol=3 / 65535)
     np.testing.assert_allclose(flattened.bands["green"].images, plain.bands["green"].images, atol=2 / 65535)
+    assert flattened.bands["red"].images.dtype == np.float32  # as every band's images (BandImages)
 
 
 def _diligent_folder(folder, counts, lights, intensities=None):
@@ -275,13 +278,171 @@ def test_diligent_layout_divides_by_each_lights_channel_intensity(tmp_path):
         ("light_intensities.txt", "1 1 1\n1 1 1\n1 0 1\n1 1 1\n", "light_intensities.txt: intensities must be positive"),
         ("light_directions.txt", "0 0\n0 0\n0 0\n0 0\n", "light_directions.txt: expected 3 numbers per line, got 2"),
         ("light_directions.txt", "0 0 1\n0 0 1\n0 0 1\nx y z\n", "light_directions.txt: not a table of numbers"),
-        ("light_directions.txt", "0.6 0 0.8\n0 0.6 0.8\n-0.6 0 0.8\n0 0.3 1\n", "line 4 \\(004.png\\): light direction .* is not a unit vector"),
+        ("light_directions.txt", "0.6 0 0.8\n0 0.6 0.8\n-0.6 0 0.8\n0 0.3 1\n",
+         "light_directions.txt: line 4 \\(004.png\\): light direction .* is not a unit vector"),
+        ("light_directions.txt", "0.6 0 0.8\n0 0.6 0.8\n-0.6 0 0.8\n", "light_directions.txt: 3 lines for 4 images in filenames.txt"),
+        ("light_directions.txt", "0.6 0 0.8\n", "light_directions.txt: 1 lines for 4 images in filenames.txt"),
     ):
         broken = tmp_path / f"broken_{name}_{len(content)}"
         shutil.copytree(folder, broken)
         (broken / name).write_text(content)
-        with pytest.raises(AcquisitionError, match=message):
+        with pytest.raises(AcquisitionError, match=message) as error:
             load_acquisition(broken)
+        assert error.value.source == str(broken)
+    write_png(folder / "mask.png", np.full((5, 8), 255, np.uint8))
+    with pytest.raises(AcquisitionError, match="mask.png: mask size 8x5 differs from the images \\(8x6\\)") as error:
+        load_acquisition(folder)
+    assert error.value.source == str(folder)
+    plain = load_acquisition(_diligent_folder(tmp_path / "plain", counts, lights))  # no light_intensities.txt: all 1
+    assert plain.bands["green"].band == "green" and [Path(f).name for f in plain.bands["green"].files] == ["001.png", "002.png", "003.png", "004.png"]
+    np.testing.assert_allclose(plain.bands["green"].images, counts[..., 1] / 65535, rtol=1e-6)
     grey = _diligent_folder(tmp_path / "grey", counts[..., 0], lights)
     with pytest.raises(AcquisitionError, match="DiLiGenT images are RGB; this one has a single channel"):
         load_acquisition(grey)
+
+
+def test_an_acquisition_with_its_device_round_trips_and_its_inconsistencies_are_named(tmp_path):
+    """write_acquisition(device=...) names each image's LED and writes device.json beside the
+    manifest; loading gives each band's lights as the LEDs' directions to the field's centre,
+    the LED names, the device and the band's wavelength. A manifest that gives a light
+    direction with a device, a pixel size that the device contradicts, images of another size
+    than the camera's, or a bad device file are each named."""
+    from skintopo.device import paper_device
+
+    device = paper_device(size_px=16)
+    rng = np.random.default_rng(2)
+    images = rng.uniform(0.2, 0.8, (4, 16, 16))
+    folder = tmp_path / "new" / "visit"  # parent folders are made
+    write_acquisition(folder, {"red": (images, np.tile([0.0, 0.0, 1.0], (4, 1)))}, device.pixel_um, device=device)
+    manifest = json.loads((folder / "acquisition.json").read_text())
+    assert manifest["device"] == "device.json" and [e["led"] for e in manifest["images"]] == [led.name for led in device.leds]
+    assert "light" not in manifest["images"][0] and "\n  " in (folder / "acquisition.json").read_text()  # indented for people
+    assert json.loads((folder / "device.json").read_text()) == json.loads(json.dumps(device.describe()))
+    acquisition = load_acquisition(folder)
+    band = acquisition.bands["red"]
+    assert acquisition.layout == "manifest" and acquisition.pixel_um_assumed is False and acquisition.device.leds == device.leds
+    assert acquisition.mask.dtype == bool and acquisition.mask.all()
+    expected = device.central_directions()
+    np.testing.assert_allclose(band.lights, expected / np.linalg.norm(expected, axis=1, keepdims=True), atol=1e-12)
+    assert band.leds == tuple(led.name for led in device.leds) and band.wavelength_nm == 625.0
+    assert [Path(f).name for f in band.files] == [f"red_{i:02d}.png" for i in range(4)]
+    np.testing.assert_allclose(band.images, images, atol=1 / 65535)
+
+    def problems_of(change, device_change=None):
+        trial = tmp_path / f"trial{len(list(tmp_path.iterdir()))}"
+        shutil.copytree(folder, trial)
+        edit_manifest(trial, change)
+        if device_change is not None:
+            data = json.loads((trial / "device.json").read_text())
+            device_change(data)
+            (trial / "device.json").write_text(json.dumps(data))
+        with pytest.raises(AcquisitionError) as error:
+            load_acquisition(trial)
+        assert error.value.source == str(trial / "acquisition.json")
+        return error.value.problems
+
+    assert problems_of(_set("images", 0, "light", [0.0, 0.0, 1.0])) == [
+        "acquisition.json: images[0] (red_00.png): with a 'device', name the image's LED ('led'), not a light direction ('light')"]
+    assert problems_of(_set("pixel_size_um", 1.5 * device.pixel_um)) == [
+        f"acquisition.json: pixel_size_um is {1.5 * device.pixel_um} but the device's pixel footprint at its working distance is "
+        f"{device.pixel_um:.6g} um"]
+    assert any(p.startswith("device.json: ") and "mu must be a number >= 0" in p
+               for p in problems_of(lambda m: None, lambda d: d["leds"][0].update(mu=-1)))
+    camera = device.describe()["camera"]
+    assert problems_of(lambda m: None, lambda d: d["camera"].update(size_px=[16, 20], principal_point_px=camera["principal_point_px"])) == [
+        "acquisition.json: the images are 16 x 16 pixels but the device's camera has 16 x 20"]
+
+
+def test_crosstalk_between_camera_channels_is_unmixed(tmp_path):
+    """Camera channel c records sum_b M[c, b] v_b of the LED bands' signals v: with the
+    manifest's 'crosstalk' M each band reads back its own v (M^-1 applied per pixel)."""
+    rng = np.random.default_rng(5)
+    crosstalk = np.array([[0.9, 0.08, 0.02], [0.1, 0.8, 0.1], [0.03, 0.12, 0.85]])
+    lights = [[0.6, 0, 0.8], [0, 0.6, 0.8], [-0.6, 0, 0.8], [0, -0.6, 0.8]]
+    truth, entries = [], []
+    for i, light in enumerate(lights):
+        signal = rng.uniform(0.1, 0.9, (6, 7, 3))  # per band: red, green, blue
+        truth.append(signal)
+        tifffile.imwrite(tmp_path / f"w{i}.tif", np.round(signal @ crosstalk.T * 65535).astype(np.uint16), photometric="rgb")
+        entries += [{"file": f"w{i}.tif", "band": band, "light": light, "channel": band} for band in ("red", "green", "blue")]
+    manifest = {"format": "skintopo-acquisition", "version": 1, "pixel_size_um": 5, "crosstalk": crosstalk.tolist(), "images": entries}
+    (tmp_path / "acquisition.json").write_text(json.dumps(manifest))
+    acquisition = load_acquisition(tmp_path)
+    for index, band in enumerate(("red", "green", "blue")):
+        np.testing.assert_allclose(acquisition.bands[band].images, np.stack([t[..., index] for t in truth]), atol=3e-5)
+
+
+def test_loading_a_manifest_file_lights_saturation_and_problems_after_a_bad_entry(lambertian_acquisition, tmp_path):
+    """The manifest file itself may be given, with the bands and the saturation asked for; a
+    pixel at exactly the saturation level is saturated; light directions within the unit
+    tolerance are normalised; an entry that is not an object does not hide the next one's
+    problem; a single-channel image given a channel is named; every error names its source."""
+    folder, _, _ = lambertian_acquisition
+    image = read_image(folder / "red_00.png")
+    image[0, :4] = 52428  # exactly 0.8 of full scale (65535 * 0.8 = 52428.0)
+    write_png(folder / "red_00.png", image)
+    edit_manifest(folder, _set("images", 1, "light", [0.0, 0.6, 0.8 * 1.0009 / 1.0]))
+    acquisition = load_acquisition(folder / "acquisition.json", bands=["red"], saturation=0.8)
+    assert list(acquisition.bands) == ["red"]
+    red = acquisition.bands["red"].images
+    assert np.isnan(red[0, 0, :4]).all() and np.isnan(red[0]).sum() == np.sum(image >= 52428)
+    np.testing.assert_allclose(np.linalg.norm(acquisition.bands["red"].lights, axis=1), 1.0, rtol=1e-12)
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder / "acquisition.json", bands=["ultraviolet"])
+    assert error.value.source == str(folder / "acquisition.json") and "unknown band(s) ['ultraviolet']" in str(error.value)
+
+    original = (folder / "acquisition.json").read_text()
+
+    def two_bad_entries(manifest):
+        manifest["images"][0] = 7
+        manifest["images"][1]["file"] = ""
+        manifest["images"][2]["band"] = "purple"
+    edit_manifest(folder, two_bad_entries)
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder)
+    assert len(error.value.problems) == 3 and "images[2] (red_02.png): field 'band'" in error.value.problems[2]
+    (folder / "acquisition.json").write_text(original)
+    edit_manifest(folder, _set("images", 3, "channel", "green"))
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder)
+    assert error.value.problems == ["acquisition.json: images[3] (red_03.png): field 'channel' is 'green' but the image has a single channel"]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(tmp_path / "empty")
+    assert error.value.source == str(tmp_path / "empty") and "neither acquisition.json nor a DiLiGenT layout" in str(error.value)
+
+
+def test_unreadable_and_mismatched_images_are_named_with_their_sizes(lambertian_acquisition):
+    folder, _, _ = lambertian_acquisition
+    (folder / "red_01.png").write_bytes(b"\x89PNG broken")
+    write_png(folder / "red_02.png", np.zeros((48, 50), np.uint16))
+    with pytest.raises(AcquisitionError) as error:
+        load_acquisition(folder)
+    problems = error.value.problems
+    assert any(p.endswith("red_01.png: not a readable PNG image (not a PNG image)") for p in problems), problems
+    assert any(p.endswith("red_02.png: image size 50x48 differs from red_00.png (64x48)") for p in problems), problems
+    assert error.value.source == str(folder / "acquisition.json")
+
+
+def test_an_rgb_image_three_rows_high_stays_channel_last(tmp_path):
+    rgb = np.arange(3 * 10 * 3, dtype=np.uint16).reshape(3, 10, 3)
+    tifffile.imwrite(tmp_path / "strip.tif", rgb, photometric="rgb")
+    np.testing.assert_array_equal(read_image(tmp_path / "strip.tif"), rgb)
+
+
+def test_a_folder_manifest_errors_name_the_folder(tmp_path):
+    from skintopo.acquisition.manifest import manifest_for_folder
+
+    lights = [{"light": [0.6, 0, 0.8]}, {"light": [0, 0.6, 0.8]}, {"light": [-0.6, 0, 0.8]}]
+    for folder, pattern, message in ((tmp_path, "{band}", "must contain {band} and {index}"), (tmp_path / "none", "{band}_{index}", "no such folder"),
+                                     (tmp_path, "{band}_{index}", "no image named like '{band}_{index}'")):
+        with pytest.raises(AcquisitionError) as error:
+            manifest_for_folder(folder, lights, 10.0, pattern=pattern)
+        assert error.value.source == str(folder) and message in str(error.value)
+    for index in (1, 2, 3):
+        write_png(tmp_path / f"red_{index}.png", np.zeros((4, 4), np.uint16))
+    lights[1]["intensity"] = 2.5
+    manifest = manifest_for_folder(tmp_path, lights, 10.0, mask=tmp_path / "sub" / "mask.png")
+    assert [e.get("intensity") for e in manifest["images"]] == [None, 2.5, None] and manifest["mask"] == "mask.png"
+    with pytest.raises(SkinTopoError, match=r"unknown band 'purple'; choose from \['red', 'green', 'blue', 'white'\]"):
+        write_acquisition(tmp_path / "new", {"purple": (np.zeros((3, 4, 4)), np.eye(3))}, 10.0)

@@ -22,7 +22,7 @@ from skintopo.batch import run_study
 from skintopo.errors import SkinTopoError
 from skintopo.pipeline import HeightOptions, MeasureOptions, SegmentationOptions
 from tests.helpers import browser
-from tests.helpers.study import write_study
+from tests.helpers.study import InProcessRunner, write_study
 
 CLI = [sys.executable, "-m", "skintopo.cli"]
 
@@ -339,105 +339,107 @@ def test_study_with_repeats_gives_detection_limits_and_a_readable_summary_page(t
             shutil.copy(shot, Path(os.environ["SKINTOPO_KEEP_SCREENSHOTS"]) / shot.name)
 
 
-def test_a_study_on_an_in_process_dask_cluster(tmp_path):
-    """The whole study path in the fast tests, on a Dask cluster inside this process (so the
-    items run in this interpreter): V1 with a repeat capture, V2, and V3 whose acquisition is
+def test_a_study_run_in_this_process(tmp_path, monkeypatch):
+    """The whole study path in the fast tests, each item run in this interpreter as a worker
+    runs it (``run_task``): V1 with a repeat capture, V2, and V3 whose acquisition is
     broken. Every table's columns and rows, the stamps against the documented fingerprint, the
     failure recorded with paths relative to the study, the summary, a rerun that skips
     everything, a changed acquisition and a corrupted result that recompute exactly their items,
     and a SIGTERM that stops the study with what was done."""
-    distributed = pytest.importorskip("distributed")
+    monkeypatch.setattr(skintopo.batch, "LocalRunner", lambda workers: InProcessRunner())
     study_path = write_study(tmp_path / "study", ["S1"], size_px=64, depth_factors=(1.0, 0.8, 0.8), repeat_first=True)
     (study_path.parent / "S1_v3" / "red_01.png").write_bytes(b"broken")
     out = tmp_path / "results" / "trial" / "out"  # outside the study, two new folders deep
     options = MeasureOptions(height=HeightOptions(method="blue"), segmentation=SegmentationOptions(min_depth_um=8.0))
     settings = {"skintopo_version": skintopo.batch.__version__, "options": options.as_dict()}
     seen = []
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
-        def run(**extra):
-            return run_study(study_path, out, options=options, scheduler=cluster.scheduler_address,
-                             progress=lambda item, kind, status: seen.append((item.visit, kind, status)), **extra)
 
-        counts, paths, failures = run()
-        assert counts == {"computed": 5, "skipped": 0, "failed": 1}  # 4 measures (1 failed), 1 compare, 1 repeat pair
-        assert sorted(seen) == [("V1", "measure", "done"), ("V1", "measure", "done"), ("V1", "repeat", "done"),
-                                ("V2", "compare", "done"), ("V2", "measure", "done"), ("V3", "measure", "failed")]
-        assert [(f["subject"], f["visit"], f["region"], f["step"]) for f in failures] == [("S1", "V3", "forehead", "measure")]
-        assert failures[0]["error"].startswith("S1_v3/acquisition.json: 1 problem") and "- S1_v3/red_01.png: not a readable PNG" in failures[0]["error"] and str(tmp_path) not in failures[0]["error"]
-        assert sorted(paths) == ["changes.csv", "failures.csv", "results.csv", "results.parquet", "results_long.csv",
-                                 "statistics.csv", "summary.html", "summary.json"]
-        # each stamp is the fingerprint of its inputs with the run's settings (the module's definition)
-        items, measured = out / "items" / "S1" / "forehead", {}
-        for visit, folder in (("V1", "S1_v1"), ("V1~repeat", "S1_v1_repeat"), ("V2", "S1_v2")):
-            stamp = json.loads((items / visit / "batch.json").read_text())
-            assert stamp == {"fingerprint": skintopo.batch.fingerprint([study_path.parent / folder], settings | {"kind": "measure"}),
-                             "skintopo_version": skintopo.batch.__version__}
-            summary = json.loads((items / visit / "summary.json").read_text())
-            assert summary["source"]["height"] == "blue band" and summary["options"]["segmentation"]["min_depth_um"] == 8.0
-            measured[visit] = summary
-        for kind, before, after in (("changes", "V1", "V2"), ("repeats", "V1", "V1~repeat")):
-            stamp = json.loads((out / kind / "S1" / "forehead" / after.split("~")[0] / "batch.json").read_text())["fingerprint"]
-            inputs = [items / before / "height.x3p", items / after / "height.x3p"]
-            assert stamp == skintopo.batch.fingerprint(inputs, settings | {"kind": "compare"})
-        assert not (items / "V3").exists() and not (out / "changes" / "S1" / "forehead" / "V3").exists()
+    def run(**extra):
+        return run_study(study_path, out, options=options, progress=lambda item, kind, status: seen.append((item.visit, kind, status)),
+                         **extra)
 
-        long = pd.read_csv(out / "results_long.csv")
-        assert list(long.columns) == ["subject", "visit", "region", "parameter", "value", "unit"]
-        assert list(long.columns) == list(pd.read_parquet(out / "results.parquet").columns)
-        pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), long.fillna({"unit": ""}), check_dtype=False)  # CSV reads a unitless "" as NaN
-        assert set(long.visit) == {"V1", "V2"} and long.groupby("visit").size().nunique() == 1
-        sa = long[long.parameter == "Sa"].set_index("visit")
-        assert sa.unit.tolist() == ["um", "um"]
-        results = pd.read_csv(out / "results.csv")
-        assert list(results.columns[:3]) == ["subject", "visit", "region"] and list(results.visit) == ["V1", "V2"]
-        assert set(results.columns[3:]) == set(long.parameter)
-        for visit in ("V1", "V2"):  # results.csv is results_long.csv, one row per visit
-            row = results[results.visit == visit].iloc[0]
-            expected = long[long.visit == visit].set_index("parameter").value
-            np.testing.assert_allclose(row[expected.index].to_numpy(float), expected.to_numpy(float), rtol=1e-12)
-        changes = pd.read_csv(out / "changes.csv")
-        assert list(changes.columns) == ["subject", "region", "baseline_visit", "visit", "parameter", "baseline", "follow_up",
-                                         "change", "change_percent"]
-        assert set(changes.visit) == {"V2"} and set(changes.baseline_visit) == {"V1"} and list(changes.parameter) == sorted(changes.parameter)
-        np.testing.assert_allclose(changes.change, changes.follow_up - changes.baseline, rtol=1e-12)
-        sa_change = changes[changes.parameter == "Sa"].iloc[0]  # the compare of the registered visits, not the difference of the fields
-        assert sa_change.baseline == pytest.approx(sa.value["V1"], rel=0.2) and sa_change.follow_up == pytest.approx(sa.value["V2"], rel=0.2)
-        statistics = pd.read_csv(out / "statistics.csv")
-        assert list(statistics.columns[:4]) == ["region", "baseline_visit", "visit", "parameter"] and "Unnamed: 0" not in statistics.columns
-        sa_statistics = statistics[statistics.parameter == "Sa"].iloc[0]
-        assert (sa_statistics.subjects, sa_statistics.repeat_pairs) == (1, 1) and sa_statistics.mean_change == pytest.approx(sa_change.change)
-        failure_table = pd.read_csv(out / "failures.csv")
-        assert list(failure_table.columns) == ["subject", "visit", "region", "step", "error"]
-        assert failure_table.iloc[0].tolist() == [failures[0][k] for k in ("subject", "visit", "region", "step", "error")]
-        summary_text = (out / "summary.json").read_text()
-        summary = json.loads(summary_text)
-        assert len(summary_text.splitlines()) > 5  # indented for a reader
-        assert {k: summary[k] for k in ("skintopo_version", "items", "measured", "failed", "options")} == {
-            "skintopo_version": skintopo.batch.__version__, "items": 3, "measured": 2, "failed": 1, "options": options.as_dict()}
-        assert summary["detection_limit"].startswith("ISO 5725-6 repeatability limit r = 2.8 s_r")
-        page = (out / "summary.html").read_text()
-        assert 'href="items/S1/forehead/V1/report.html"' in page and 'href="items/S1/forehead/V2/report.html"' in page
+    counts, paths, failures = run()
+    assert counts == {"computed": 5, "skipped": 0, "failed": 1}  # 4 measures (1 failed), 1 compare, 1 repeat pair
+    assert sorted(seen) == [("V1", "measure", "done"), ("V1", "measure", "done"), ("V1", "repeat", "done"),
+                            ("V2", "compare", "done"), ("V2", "measure", "done"), ("V3", "measure", "failed")]
+    assert [(f["subject"], f["visit"], f["region"], f["step"]) for f in failures] == [("S1", "V3", "forehead", "measure")]
+    error = failures[0]["error"]
+    assert error.startswith("S1_v3/acquisition.json: 1 problem") and "- S1_v3/red_01.png: not a readable PNG" in error
+    assert str(tmp_path) not in error
+    assert sorted(paths) == ["changes.csv", "failures.csv", "results.csv", "results.parquet", "results_long.csv",
+                             "statistics.csv", "summary.html", "summary.json"]
+    # each stamp is the fingerprint of its inputs with the run's settings (the module's definition)
+    items, measured = out / "items" / "S1" / "forehead", {}
+    for visit, folder in (("V1", "S1_v1"), ("V1~repeat", "S1_v1_repeat"), ("V2", "S1_v2")):
+        stamp = json.loads((items / visit / "batch.json").read_text())
+        assert stamp == {"fingerprint": skintopo.batch.fingerprint([study_path.parent / folder], settings | {"kind": "measure"}),
+                         "skintopo_version": skintopo.batch.__version__}
+        summary = json.loads((items / visit / "summary.json").read_text())
+        assert summary["source"]["height"] == "blue band" and summary["options"]["segmentation"]["min_depth_um"] == 8.0
+        measured[visit] = summary
+    for kind, before, after in (("changes", "V1", "V2"), ("repeats", "V1", "V1~repeat")):
+        stamp = json.loads((out / kind / "S1" / "forehead" / after.split("~")[0] / "batch.json").read_text())["fingerprint"]
+        inputs = [items / before / "height.x3p", items / after / "height.x3p"]
+        assert stamp == skintopo.batch.fingerprint(inputs, settings | {"kind": "compare"})
+    assert not (items / "V3").exists() and not (out / "changes" / "S1" / "forehead" / "V3").exists()
 
-        seen.clear()
-        assert run()[0] == {"computed": 0, "skipped": 5, "failed": 1}  # the broken visit is tried again
-        (items / ".V2.partial").mkdir()  # a staging folder left by a killed run
-        manifest = study_path.parent / "S1_v2" / "acquisition.json"  # one byte changed, same size
-        manifest.write_text(manifest.read_text().replace("synthetic skin", "synthetiC skin"))
-        assert run()[0] == {"computed": 2, "skipped": 3, "failed": 1}  # V2 and its compare
-        assert not (items / ".V2.partial").exists()
-        height = items / "V1~repeat" / "height.x3p"  # a result corrupted on disk: its comparison fails, naming it
-        height.write_bytes(b"not an x3p file")
-        counts, _, failures = run()
-        assert counts == {"computed": 0, "skipped": 4, "failed": 2}
-        repeat_failure = [f for f in failures if f["step"] == "repeat"][0]
-        assert "items/S1/forehead/V1~repeat/height.x3p" in repeat_failure["error"] and str(tmp_path) not in repeat_failure["error"]
-        assert not (out / "repeats" / "S1" / "forehead" / "V1").exists()  # no stale result beside a failure
-        assert pd.read_csv(out / "statistics.csv").repeat_pairs.fillna(0).eq(0).all()
+    long = pd.read_csv(out / "results_long.csv")
+    assert list(long.columns) == ["subject", "visit", "region", "parameter", "value", "unit"]
+    assert list(long.columns) == list(pd.read_parquet(out / "results.parquet").columns)
+    # the same table (CSV reads a unitless "" back as NaN)
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), long.fillna({"unit": ""}), check_dtype=False)
+    assert set(long.visit) == {"V1", "V2"} and long.groupby("visit").size().nunique() == 1
+    sa = long[long.parameter == "Sa"].set_index("visit")
+    assert sa.unit.tolist() == ["um", "um"]
+    results = pd.read_csv(out / "results.csv")
+    assert list(results.columns[:3]) == ["subject", "visit", "region"] and list(results.visit) == ["V1", "V2"]
+    assert set(results.columns[3:]) == set(long.parameter)
+    for visit in ("V1", "V2"):  # results.csv is results_long.csv, one row per visit
+        row = results[results.visit == visit].iloc[0]
+        expected = long[long.visit == visit].set_index("parameter").value
+        np.testing.assert_allclose(row[expected.index].to_numpy(float), expected.to_numpy(float), rtol=1e-12)
+    changes = pd.read_csv(out / "changes.csv")
+    assert list(changes.columns) == ["subject", "region", "baseline_visit", "visit", "parameter", "baseline", "follow_up",
+                                     "change", "change_percent"]
+    assert set(changes.visit) == {"V2"} and set(changes.baseline_visit) == {"V1"} and list(changes.parameter) == sorted(changes.parameter)
+    np.testing.assert_allclose(changes.change, changes.follow_up - changes.baseline, rtol=1e-12)
+    sa_change = changes[changes.parameter == "Sa"].iloc[0]  # the compare of the registered visits, not the difference of the fields
+    assert sa_change.baseline == pytest.approx(sa.value["V1"], rel=0.2) and sa_change.follow_up == pytest.approx(sa.value["V2"], rel=0.2)
+    statistics = pd.read_csv(out / "statistics.csv")
+    assert list(statistics.columns[:4]) == ["region", "baseline_visit", "visit", "parameter"] and "Unnamed: 0" not in statistics.columns
+    sa_statistics = statistics[statistics.parameter == "Sa"].iloc[0]
+    assert (sa_statistics.subjects, sa_statistics.repeat_pairs) == (1, 1) and sa_statistics.mean_change == pytest.approx(sa_change.change)
+    failure_table = pd.read_csv(out / "failures.csv")
+    assert list(failure_table.columns) == ["subject", "visit", "region", "step", "error"]
+    assert failure_table.iloc[0].tolist() == [failures[0][k] for k in ("subject", "visit", "region", "step", "error")]
+    summary_text = (out / "summary.json").read_text()
+    summary = json.loads(summary_text)
+    assert len(summary_text.splitlines()) > 5  # indented for a reader
+    assert {k: summary[k] for k in ("skintopo_version", "items", "measured", "failed", "options")} == {
+        "skintopo_version": skintopo.batch.__version__, "items": 3, "measured": 2, "failed": 1, "options": options.as_dict()}
+    assert summary["detection_limit"].startswith("ISO 5725-6 repeatability limit r = 2.8 s_r")
+    page = (out / "summary.html").read_text()
+    assert 'href="items/S1/forehead/V1/report.html"' in page and 'href="items/S1/forehead/V2/report.html"' in page
 
-        seen.clear()
-        with pytest.raises(skintopo.batch.BatchInterrupted) as stopped:  # SIGTERM as the first item finishes
-            run_study(study_path, out, options=options, scheduler=cluster.scheduler_address, force=True,
-                      progress=lambda item, kind, status: os.kill(os.getpid(), signal.SIGTERM))
+    seen.clear()
+    assert run()[0] == {"computed": 0, "skipped": 5, "failed": 1}  # the broken visit is tried again
+    (items / ".V2.partial").mkdir()  # a staging folder left by a killed run
+    manifest = study_path.parent / "S1_v2" / "acquisition.json"  # one byte changed, same size
+    manifest.write_text(manifest.read_text().replace("synthetic skin", "synthetiC skin"))
+    assert run()[0] == {"computed": 2, "skipped": 3, "failed": 1}  # V2 and its compare
+    assert not (items / ".V2.partial").exists()
+    height = items / "V1~repeat" / "height.x3p"  # a result corrupted on disk: its comparison fails, naming it
+    height.write_bytes(b"not an x3p file")
+    counts, _, failures = run()
+    assert counts == {"computed": 0, "skipped": 4, "failed": 2}
+    repeat_failure = [f for f in failures if f["step"] == "repeat"][0]
+    assert "items/S1/forehead/V1~repeat/height.x3p" in repeat_failure["error"] and str(tmp_path) not in repeat_failure["error"]
+    assert not (out / "repeats" / "S1" / "forehead" / "V1").exists()  # no stale result beside a failure
+    assert pd.read_csv(out / "statistics.csv").repeat_pairs.fillna(0).eq(0).all()
+
+    seen.clear()
+    with pytest.raises(skintopo.batch.BatchInterrupted) as stopped:  # SIGTERM as the first item finishes
+        run_study(study_path, out, options=options, force=True, progress=lambda item, kind, status: os.kill(os.getpid(), signal.SIGTERM))
     assert stopped.value.signal_number == signal.SIGTERM and set(stopped.value.counts) == {"computed", "skipped", "failed"}
     assert_items_complete(out)
     assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.partial"))
@@ -492,7 +494,7 @@ def test_local_runner_stops_its_workers_and_records_a_lost_worker(tmp_path):
     import multiprocessing
 
     runner = skintopo.batch.LocalRunner(1)
-    busy = runner.pool.submit(time.sleep, 60)
+    busy = runner.pool.submit(time.sleep, 20)
     deadline = time.time() + 30
     while not multiprocessing.active_children() and time.time() < deadline:
         time.sleep(0.05)
@@ -503,6 +505,10 @@ def test_local_runner_stops_its_workers_and_records_a_lost_worker(tmp_path):
     assert_gone(workers)
     runner = skintopo.batch.LocalRunner(2)
     assert runner.pool.submit(os.getpid).result(timeout=60) != os.getpid()
+    # each worker a clean interpreter (spawned, not forked: nothing of this process's modules)
+    assert runner.pool.submit(eval, "__import__('sys').modules.get('tests.batch.test_batch') is None").result(timeout=60)
+    blas = "[i['num_threads'] for i in __import__('threadpoolctl').threadpool_info() if i['user_api'] == 'blas']"
+    assert set(runner.pool.submit(eval, blas).result(timeout=60)) == {1}  # one BLAS thread per worker when there are several
     runner.close()
     assert multiprocessing.active_children() == []
 

@@ -182,3 +182,29 @@ def test_segmentation_from_known_labels_widens_each_wrinkle_by_its_width():
     width_1, width_2 = 1000 * 400 / (major_px * 20), 400 * 400 / (major_px * 20)
     np.testing.assert_array_equal(segmentation.extent, (distance_1 <= width_1) | (distance_2 <= width_2))
     assert segmentation.lines[24:26, 40:120].any(axis=0).all() and not segmentation.lines[labels == 0].any()
+
+
+def test_one_straight_groove_beside_a_masked_area_is_one_wrinkle_along_its_floor():
+    """A Gaussian groove (60 um deep, sigma 120 um) along x on a plane, its centre at row
+    100.3, the left 30 columns and the bottom 50 rows masked out, the band-pass alone (no
+    straight valleys): one wrinkle, its half-depth region symmetric about the groove's axis,
+    its centre line on the axis and along the whole valid length, nothing (region, walls or
+    line) outside the mask. Label images given as masks are read as "label > 0"."""
+    rows, columns, pixel = 200, 240, 20.0
+    y = (np.arange(rows)[:, None] - 100.3) * pixel
+    mask = np.ones((rows, columns), bool)
+    mask[:, :30] = False
+    mask[150:] = False
+    z = np.where(mask, -60.0 * np.exp(-0.5 * (y / 120.0) ** 2) * np.ones((1, columns)), np.nan)
+    found = segment_wrinkles(HeightMap(z, (pixel, pixel), mask), straight_valley_um=0)
+    assert found.count == 1 and found.labels.max() == 1
+    assert not found.labels[~mask].any() and not found.extent[~mask].any() and not found.lines[~mask].any()
+    label_rows = np.flatnonzero(found.labels.any(axis=1))
+    assert abs((label_rows.min() + label_rows.max()) / 2 - 100.3) <= 1.0
+    line_rows = np.flatnonzero(found.lines.any(axis=1))
+    assert set(line_rows) <= {100, 101} and found.lines[:, 30:].any(axis=0).mean() > 0.9
+    assert found.extent[found.mask].all() and found.extent.sum() > found.mask.sum()
+    as_labels = np.where(found.labels > 0, 2, 0).astype(np.int64)  # a label image, not a boolean mask
+    assert segmentation_quality(as_labels, found.labels > 0) == segmentation_quality(found.labels > 0, found.labels > 0)
+    assert segmentation_quality(found.labels > 0, as_labels)["iou"] == 1.0
+    assert segmentation_from_labels(found.labels.astype(np.uint8), pixel).labels.dtype == np.int32
