@@ -164,6 +164,11 @@ def test_skin_around_wrinkles_is_the_valid_skin_beyond_the_margin():
     everywhere = np.ones_like(valid)
     everywhere[0, 0] = False
     assert skin_around(valid, everywhere, 20.0) is None
+    field, wrinkles = np.ones_like(valid), np.zeros_like(valid)
+    wrinkles[3:] = True  # one pixel of margin (the least) leaves 2 of 60 rows: 3% of the field, too little
+    assert margin_pixels(10.0, 20.0) == 1 and skin_around(field, wrinkles, 20.0, margin_um=10.0) is None
+    wrinkles[:5] = False  # 4 rows: 7%
+    assert skin_around(field, wrinkles, 20.0, margin_um=10.0).sum() == 4 * 80
 
 
 def test_segmentation_from_known_labels_widens_each_wrinkle_by_its_width():
@@ -206,5 +211,7 @@ def test_one_straight_groove_beside_a_masked_area_is_one_wrinkle_along_its_floor
     assert found.extent[found.mask].all() and found.extent.sum() > found.mask.sum()
     as_labels = np.where(found.labels > 0, 2, 0).astype(np.int64)  # a label image, not a boolean mask
     assert segmentation_quality(as_labels, found.labels > 0) == segmentation_quality(found.labels > 0, found.labels > 0)
-    assert segmentation_quality(found.labels > 0, as_labels)["iou"] == 1.0
+    assert segmentation_quality(found.labels > 0, as_labels) == {"precision": 1.0, "recall": 1.0, "iou": 1.0}
+    empty = np.zeros((4, 4), bool)
+    assert all(np.isnan(v) for v in segmentation_quality(empty, empty).values())
     assert segmentation_from_labels(found.labels.astype(np.uint8), pixel).labels.dtype == np.int32

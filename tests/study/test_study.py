@@ -73,6 +73,10 @@ def test_study_files_without_rows_or_columns_and_what_a_valid_one_gives(tmp_path
     no_region.write_text("subject,visit,acquisition\nS1,V1,a\n")
     with pytest.raises(SkinTopoError, match=r"needs the columns \['subject', 'visit', 'region', 'acquisition'\] \(missing \['region'\]\)"):
         read_study(no_region)
+    not_text = tmp_path / "binary.csv"
+    not_text.write_bytes(b"subject,visit\n\xff\xfe\x00\x81\n")
+    with pytest.raises(SkinTopoError, match=r"binary.csv: not a readable CSV file \('utf-8' codec can't decode"):
+        read_study(not_text)
     problems = tmp_path / "problems.csv"
     problems.write_text("subject,visit,region,acquisition\nS1,,,a\nAnna,V1,cheek,a\nAnna,V1,cheek,a\n")
     with pytest.raises(SkinTopoError) as error:
