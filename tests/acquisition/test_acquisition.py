@@ -446,3 +446,31 @@ def test_a_folder_manifest_errors_name_the_folder(tmp_path):
     assert [e.get("intensity") for e in manifest["images"]] == [None, 2.5, None] and manifest["mask"] == "mask.png"
     with pytest.raises(SkinTopoError, match=r"unknown band 'purple'; choose from \['red', 'green', 'blue', 'white'\]"):
         write_acquisition(tmp_path / "new", {"purple": (np.zeros((3, 4, 4)), np.eye(3))}, 10.0)
+
+
+def _write_dng(path, mosaic):
+    """A minimal DNG (TIFF with the DNG tags LibRaw needs): an RGGB colour filter mosaic, black
+    level 0, white level 65535, identity colour matrix."""
+    tags = [(50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
+            (50708, "s", 0, "skintopo test camera", True),  # UniqueCameraModel
+            (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
+            (33422, "B", 4, (0, 1, 1, 2), True),  # CFAPattern: R G / G B
+            (50717, "I", 1, 65535, True),  # WhiteLevel
+            (50714, "H", 1, 0, True),  # BlackLevel
+            (50721, "2i", 9, (1, 1, 0, 1, 0, 1, 0, 1, 1, 1, 0, 1, 0, 1, 0, 1, 1, 1), True)]  # ColorMatrix1 = I
+    tifffile.imwrite(path, mosaic, photometric=32803, extratags=tags, subfiletype=0)
+
+
+def test_camera_raw_is_read_linear_in_the_cameras_own_channels(tmp_path):
+    """A DNG whose mosaic records red 4000, green 12000 and blue 30000 counts everywhere reads
+    back as exactly those 16-bit values in every pixel (demosaiced, no gamma, no white balance,
+    no brightening, the camera's channels); a file that is not raw is named."""
+    mosaic = np.zeros((32, 48), np.uint16)
+    mosaic[0::2, 0::2], mosaic[0::2, 1::2], mosaic[1::2, 0::2], mosaic[1::2, 1::2] = 4000, 12000, 12000, 30000
+    _write_dng(tmp_path / "capture.dng", mosaic)
+    image = read_image(tmp_path / "capture.dng")
+    assert image.shape == (32, 48, 3) and image.dtype == np.uint16
+    np.testing.assert_array_equal(image[2:-2, 2:-2], np.broadcast_to([4000, 12000, 30000], (28, 44, 3)))
+    (tmp_path / "broken.nef").write_bytes(b"not a raw file")
+    with pytest.raises(SkinTopoError, match="broken.nef: not a readable camera raw file"):
+        read_image(tmp_path / "broken.nef")
