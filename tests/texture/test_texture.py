@@ -385,6 +385,19 @@ def test_every_missing_or_impossible_value_has_its_reason():
     assert np.isnan(flat["Ssk"].value) and "flat" in parameter_note(flat["Ssk"])
     assert "outside [2, 3]" in parameter_note(Parameter("D_power-spectrum", 1.716, "", "power spectrum"))
     assert parameter_note(Parameter("D_power-spectrum", 2.3, "", "power spectrum")) == ""
+    assert parameter_note(Parameter("D_cube-counting", 3.2, "", "cube counting")).endswith(
+        "(the surface is not self-affine there), so this is not a dimension of this surface")
+    for bound in (2.0, 3.0):  # the closed range [2, 3]
+        assert parameter_note(Parameter("D_cube-counting", bound, "", "cube counting")) == ""
+    assert parameter_note(Parameter("D_triangulation", float("nan"), "", "triangulation")) == "undefined on a flat map"
+    assert parameter_note(Parameter("Sxx", float("nan"), "", "")) == "undefined for this map"
+
+
+def test_values_for_json_are_none_where_not_finite():
+    from skintopo.texture import finite_or_none
+
+    assert [finite_or_none(v) for v in (None, float("nan"), float("inf"), np.float64("nan"), 1.5, np.float64(2.5), 3)] == [
+        None, None, None, None, 1.5, 2.5, 3]
 
 
 def test_areal_power_spectrum_dimension_of_fractional_brownian_surfaces():
