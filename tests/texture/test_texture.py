@@ -458,3 +458,24 @@ def test_spatial_parameters_of_an_oblique_sinusoid(phi):
     values = spatial_parameters(HeightMap(z, 1.0))
     assert values["Sal"] == pytest.approx(16.0 * np.arccos(0.2) / (2 * np.pi), rel=0.01)
     assert np.isnan(values["Str"]) and abs(values["Std"] - phi) <= 0.5
+
+
+def test_fractal_estimators_fill_missing_points_from_their_nearest_neighbour():
+    """Gwyddion's estimators work on complete fields: a map with missing points gives the
+    dimension of the same map with each missing point set to its nearest valid neighbour's
+    height (nearest found here by SciPy's exact Euclidean distance transform; the areal
+    spectrum, not Gwyddion's, uses the valid points alone); two usable scales are enough for
+    the log-log line."""
+    from skintopo.texture.fractal import _fit
+
+    z = fbm(64, 0.6, 3)
+    mask = np.ones_like(z, dtype=bool)
+    mask[10:14, 20:23] = False
+    mask[40, 5] = False
+    _, (rows, columns) = scipy.ndimage.distance_transform_edt(~mask, return_indices=True)
+    filled = z[rows, columns]
+    for method in set(ESTIMATORS) - {"power-spectrum-areal"}:
+        measured = fractal_dimension(HeightMap(np.where(mask, z, np.nan), 1.0, mask), method).dimension
+        assert measured == pytest.approx(fractal_dimension(HeightMap(filled, 1.0), method).dimension, abs=1e-12), method
+    line = _fit("test", [0.0, 1.0, np.nan], [1.0, 3.0, 5.0], lambda slope: slope)
+    assert line.dimension == pytest.approx(2.0) and line.intercept == pytest.approx(1.0)
