@@ -41,6 +41,7 @@ from _results import write_result
 
 ROOT = Path(__file__).resolve().parent.parent
 WORK = ROOT / "build" / "mutation"
+TIMEOUT_MULTIPLIER = 3.0  # mutmut's timeout_multiplier (see _prepare)
 
 # module -> (the files mutmut mutates, the tests run against them: the module's own folder, and
 # for acquisition the two files that test its DiLiGenT reader and its folder inference, for batch
@@ -114,7 +115,11 @@ def _prepare(module):
         'source_paths = ["src/"]\n'
         'also_copy = ["README.md"]\n'
         f"only_mutate = {json.dumps([pattern])}\n"
-        f"pytest_add_cli_args_test_selection = {json.dumps(selection)}\n")
+        f"pytest_add_cli_args_test_selection = {json.dumps(selection)}\n"
+        # A mutant that loops for ever (a read loop whose end sentinel is changed) is stopped
+        # after 2 x TIMEOUT_MULTIPLIER times its tests' time in CPU seconds (mutmut's default
+        # multiplier 15 let one such batch mutant run for 13 minutes).
+        f"timeout_multiplier = {TIMEOUT_MULTIPLIER}\n")
     return folder
 
 
