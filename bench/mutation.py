@@ -9,8 +9,8 @@ tests; mutmut keeps its results there, so a second run retests only what changed
 By default a fixed fifth of the mutants is run (mutmut's mutants numbered ..0 and ..5 within
 each function: every function with five or more mutants is sampled, the same mutants on every
 run): `make mutate` took 34 minutes on 2 cores (the eleven modules 30 minutes, 11 of them for
-batch, whose fast tests run a small study); ``--all`` runs every mutant (several hours). The score of a sample is given with its
-95% Wilson interval.
+batch, whose fast tests run a small study); ``--all`` runs every mutant (several hours). The
+score of a sample is given with its 95% Wilson interval.
 
 Mutation score = killed / (killed + survived + no test + suspicious), after the mutants judged
 equivalent (``bench/mutation_equivalent.toml``: a mutant that no input can tell from the
