@@ -53,6 +53,17 @@ def gaussian_transmission(wavelength_um, cutoff_um):
 _FFT_SIGMA_PX = 8.0  # from this width on, Gaussian smoothing by FFT is faster than direct
 
 
+def _fft_plan(shape, sigmas):
+    """FFT lengths (each axis padded by 4 sigma, so nothing wraps around into the data) and
+    the Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) along each axis (rows: full
+    spectrum, columns: half spectrum, as ``rfft2`` lays them out)."""
+    pad = [int(np.ceil(_TRUNCATE * s)) for s in sigmas]
+    lengths = [scipy.fft.next_fast_len(n + 2 * p, real=True) for n, p in zip(shape, pad)]
+    transfer_rows = np.exp(-2 * np.pi**2 * (sigmas[0] * scipy.fft.fftfreq(lengths[0])) ** 2)
+    transfer_columns = np.exp(-2 * np.pi**2 * (sigmas[1] * scipy.fft.rfftfreq(lengths[1])) ** 2)
+    return lengths, transfer_rows, transfer_columns
+
+
 def gaussian_smooth(images, sigmas, out=None):
     """Separable Gaussian smoothing of several same-shaped images, zero outside the field.
 
@@ -79,17 +90,32 @@ def gaussian_smooth(images, sigmas, out=None):
             continue
         rows, columns = image.shape
         if transfer is None:
-            pad = [int(np.ceil(_TRUNCATE * s)) for s in sigmas]
-            shape = [scipy.fft.next_fast_len(n + 2 * p, real=True) for n, p in zip((rows, columns), pad)]
-            fy = scipy.fft.fftfreq(shape[0])[:, None]
-            fx = scipy.fft.rfftfreq(shape[1])[None, :]
-            transfer = np.exp(-2 * np.pi**2 * ((sigmas[0] * fy) ** 2 + (sigmas[1] * fx) ** 2))
+            shape, transfer_rows, transfer_columns = _fft_plan(image.shape, sigmas)
+            transfer = transfer_rows[:, None] * transfer_columns[None, :]
         spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
         spectrum *= transfer
         # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
         # reaches into the padding, which is at least 4 sigma wide on each side.
         flat_out[index] = scipy.fft.irfft2(spectrum, s=shape, workers=-1)[:rows, :columns]
     return out
+
+
+def gaussian_smooth_separable(columns_of_rows, rows_of_columns, sigmas):
+    """:func:`gaussian_smooth` of the images u(y) v(x) (outer products), as the 1-D smoothings
+    of their factors: the separable filter of u v is (g_y * u)(g_x * v), computed in O(rows +
+    columns) instead of O(rows x columns). ``columns_of_rows`` (k, rows) holds the u,
+    ``rows_of_columns`` (k, columns) the v; returns the two smoothed stacks, whose outer
+    products are the smoothed images (same kernels, padding and FFT lengths as
+    :func:`gaussian_smooth`, so equal to it up to rounding)."""
+    u, v = np.atleast_2d(np.asarray(columns_of_rows, dtype=np.float64)), np.atleast_2d(np.asarray(rows_of_columns, dtype=np.float64))
+    if max(sigmas) < _FFT_SIGMA_PX:
+        return tuple(scipy.ndimage.gaussian_filter1d(factor, sigma, axis=-1, mode="constant", truncate=_TRUNCATE)
+                     for factor, sigma in ((u, sigmas[0]), (v, sigmas[1])))
+    (length_rows, length_columns), transfer_rows, transfer_columns = _fft_plan((u.shape[-1], v.shape[-1]), sigmas)
+    # rows: the full-spectrum transfer is even in f, so its half (f >= 0) is the rfft's
+    smoothed_u = scipy.fft.irfft(scipy.fft.rfft(u, n=length_rows) * transfer_rows[: length_rows // 2 + 1], n=length_rows)[:, : u.shape[-1]]
+    smoothed_v = scipy.fft.irfft(scipy.fft.rfft(v, n=length_columns) * transfer_columns, n=length_columns)[:, : v.shape[-1]]
+    return smoothed_u, smoothed_v
 
 
 def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
@@ -123,7 +149,6 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
     if not valid.any():
         raise SkinTopoError("the height map has no valid points to filter")
-    weight = valid.astype(np.float64)
     values = np.where(valid, z, 0.0)
     rows, columns = z.shape
     # Centred coordinates (pixels) keep the moment sums well conditioned; kept as a column
@@ -131,10 +156,21 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     # so that the filter holds about 20 field-sized arrays at its peak, not 40.
     y = (np.arange(rows) - rows / 2)[:, None]
     x = (np.arange(columns) - columns / 2)[None, :]
-    products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
-                (values, x), (values, y))
-    moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
-                              out=np.empty((len(products), rows, columns)))
+    if valid.all():
+        # The weight is 1 everywhere: its six moments 1, x, y, x^2, xy, y^2 are outer products
+        # of powers of y and of x, smoothed as 1-D factors (six 2-D smoothings saved).
+        u, v = gaussian_smooth_separable(y.T ** np.arange(3)[:, None], x ** np.arange(3)[:, None], sigmas)
+        products = ((values, None), (values, x), (values, y))
+        moments = np.empty((9, rows, columns))
+        for out, (power_y, power_x) in zip(moments, ((0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0))):
+            np.multiply(u[power_y][:, None], v[power_x][None, :], out=out)
+        gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas, out=moments[6:])
+    else:
+        weight = valid.astype(np.float64)
+        products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
+                    (values, x), (values, y))
+        moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
+                                  out=np.empty((len(products), rows, columns)))
     s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = moments
     # Moments about each output point (x0, y0), in place (each before the sums it reads change).
     # The operations are those of mxx = sxx - 2 x sx + x^2 s0 etc. in the same order (same rounding).

@@ -43,7 +43,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.ndimage
-import scipy.optimize
 
 from skintopo._linalg import solve_symmetric_3x3
 from skintopo.defaults import DEFAULT_INTEGRATOR, DEFAULT_SHADOW_FRACTION
@@ -426,6 +425,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
 
 def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction):
     """The depth d = k x shape that minimises the mean relative photometric residual (mm)."""
+    import scipy.optimize  # here, not at the top: it takes 0.1 s to import and measure rarely needs it
+
     def cost(log_k):
         _, residual, _ = _normals_at(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction)
         return float(np.nanmean(residual))

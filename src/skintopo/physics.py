@@ -67,7 +67,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.fft
 import scipy.ndimage
-import scipy.optimize
 
 from skintopo.errors import SkinTopoError
 from skintopo.filters import polynomial_form
@@ -231,6 +230,8 @@ def estimate_scattering_kernels(scaled_normals, spacing):
     Uses the rings from 3 frequency steps up (lower rings are dominated by the window and the
     form) whose power is above 1e-3 of the strongest. Returns (kernels, RMS misfit).
     """
+    import scipy.optimize  # here, not at the top: it takes 0.1 s to import and measure rarely needs it
+
     frequency, ratios, power = band_transfer_ratios(scaled_normals, spacing)
     low = frequency >= 3 * frequency[1]
     use = low & (power > power[low].max() * 1e-3)

@@ -88,6 +88,36 @@ def test_plane_passes_unchanged_including_edges_and_masks():
         assert np.nanmax(np.abs(low - z)) < 1e-9
 
 
+@pytest.mark.parametrize("sigma_y, masked", [(3.0, False), (3.0, True), (10.0, False), (10.0, True)])
+def test_regression_equals_a_weighted_plane_fitted_by_direct_sums(sigma_y, masked):
+    """ISO 16610-61 as first-order Gaussian regression: at each point, the plane fitted by
+    weighted least squares with the Gaussian weights over the valid points, written here as
+    direct sums (numpy lstsq per point) on rectangular pixels (sigma_x = 0.8 sigma_y), at
+    corners, edges, inside and beside a masked block. The narrow filter (direct path)
+    truncates its kernel at 4 sigma along each axis as scipy does, int(4 sigma + 0.5); the wide
+    one (FFT path) uses the whole Gaussian. With a full mask the filter's weight moments are
+    1-D smoothings, with a partial one 2-D."""
+    rng = np.random.default_rng(5)
+    z = rng.normal(size=(70, 90)).cumsum(axis=0).cumsum(axis=1)
+    dy, dx = 10.0, 12.5
+    sigmas = (sigma_y, 0.8 * sigma_y)
+    cutoff = sigma_y * dy * np.sqrt(2 * np.pi) / np.sqrt(np.log(2) / np.pi)
+    mask = np.ones(z.shape, bool)
+    if masked:
+        mask[20:35, 30:60] = False
+    low = areal_gaussian_filter(np.where(mask, z, np.nan), (dy, dx), cutoff, mask if masked else None)
+    rows, columns = np.mgrid[: z.shape[0], : z.shape[1]]
+    for r, c in ((0, 0), (69, 89), (0, 45), (35, 0), (40, 50), (19, 45), (27, 62)):
+        if not mask[r, c] and not masked:
+            continue
+        weight = np.exp(-0.5 * (((rows - r) / sigmas[0]) ** 2 + ((columns - c) / sigmas[1]) ** 2)) * mask
+        if sigma_y < 8:  # the direct path's truncated kernels
+            weight *= (np.abs(rows - r) <= int(4 * sigmas[0] + 0.5)) & (np.abs(columns - c) <= int(4 * sigmas[1] + 0.5))
+        design = np.column_stack([np.ones(z.size), (columns - c).ravel(), (rows - r).ravel()]) * np.sqrt(weight.ravel())[:, None]
+        plane = np.linalg.lstsq(design, z.ravel() * np.sqrt(weight.ravel()), rcond=None)[0]
+        assert low[r, c] == pytest.approx(plane[0], abs=1e-8 * np.ptp(z))
+
+
 def test_a_single_valid_row_is_filtered_by_the_weighted_mean_and_reaches_five_sigmas():
     """Where the valid points lie on one row, the local plane has no y-slope to fit and the
     filter falls back to the weighted mean (zeroth order): along the row, the 1-D Gaussian,

@@ -10,7 +10,7 @@ from skintopo.evaluation import match_wrinkle
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
-from skintopo.wrinkles import centre_lines, measure_wrinkles, wrinkle_frame
+from skintopo.wrinkles import centre_lines, measure_wrinkles, quadratic_savitzky_golay, wrinkle_frame
 
 TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10,
               "cross_section_mm2": 0.10}
@@ -103,6 +103,21 @@ def test_centre_line_is_the_longest_path_without_side_branches():
     frame = wrinkle_frame(main_path, (2.0, 1.5), smoothing_um=100.0, extension_um=0.0, half_span_um=3.0, step_um=0.5)
     assert frame.s[-1] == pytest.approx(59 * 1.5, abs=0.5)
     np.testing.assert_allclose((frame.direction_deg() + 90) % 180 - 90, 0.0, atol=1e-6)  # axial: 180 is 0
+
+
+@pytest.mark.parametrize("points, window", [(5, 5), (6, 5), (40, 11), (101, 21)])
+def test_savitzky_golay_smoothing_matches_scipy(points, window):
+    """The path smoother against scipy.signal.savgol_filter (quadratic, ends fitted by the end
+    windows' quadratic), on 2-D paths and 1-D profiles; and a parabola passes unchanged."""
+    import scipy.signal
+
+    path = np.random.default_rng(points).normal(size=(points, 2)).cumsum(axis=0)
+    np.testing.assert_allclose(quadratic_savitzky_golay(path, window), scipy.signal.savgol_filter(path, window, 2, axis=0, mode="interp"),
+                               atol=1e-12)
+    np.testing.assert_allclose(quadratic_savitzky_golay(path[:, 0], window), scipy.signal.savgol_filter(path[:, 0], window, 2, mode="interp"),
+                               atol=1e-12)
+    t = np.arange(points, dtype=float)
+    np.testing.assert_allclose(quadratic_savitzky_golay(3 - 2 * t + 0.5 * t**2, window), 3 - 2 * t + 0.5 * t**2, atol=1e-9)
 
 
 def test_frame_of_a_staircase_line_has_its_true_length_and_direction():
