@@ -8,7 +8,7 @@ import numpy as np
 
 from skintopo.heightmap import HeightMap
 from skintopo.pipeline import crop_region
-from skintopo.report import build_report
+from skintopo.report import build_report, copper, hillshade, wrinkle_overlay_rgb
 from skintopo.synth import make_surface, preset_spec
 from skintopo.texture import measure_texture
 
@@ -62,3 +62,67 @@ def test_values_without_meaning_carry_their_reason_in_the_report():
     assert page.count("outside [2, 3]") == 2 and "field: outside [2, 3]" in page
     assert "field: the autocorrelation does not fall to s = 0.2" in page
     assert "corner: outside" not in page
+
+
+def test_colour_map_and_shading_match_matplotlib():
+    """The maps are coloured and shaded with NumPy; matplotlib's copper map and
+    LightSource.hillshade (azimuth 315, altitude 45) are the reference, on rectangular pixels."""
+    import matplotlib
+    from matplotlib.colors import LightSource
+
+    t = np.linspace(0, 1, 1001)
+    np.testing.assert_allclose(copper(t), matplotlib.colormaps["copper"](t)[:, :3], atol=1.5 / 255)  # matplotlib's 256-entry table
+    z = make_surface(preset_spec("forehead-moderate", size_px=64), seed=2).height.z
+    np.testing.assert_allclose(hillshade(z, (20.0, 12.5)), LightSource(azdeg=315, altdeg=45).hillshade(z, dx=12.5, dy=20.0), atol=1e-12)
+
+
+def _pictures(page):
+    """The report's inline PNG maps, decoded, in page order."""
+    import imagecodecs
+
+    return [imagecodecs.png_decode(base64.b64decode(data)) for data in re.findall(r'<img alt="[^"]*" src="data:image/png;base64,([^"]+)"', page)]
+
+
+def test_height_map_picture_colours_heights_and_shows_missing_points():
+    """The height map: the colour bar spans the finite heights; missing points are
+    transparent grey, the rest opaque; the highest point's colour is copper's top end under
+    the soft-light shading, the lowest copper's black."""
+    z = np.add.outer(np.linspace(0.0, 50.0, 40), np.zeros(60))  # a ramp down the image
+    z[5:9, 10:20] = np.nan
+    page = build_report(title="t", height=HeightMap(z, 10.0))
+    assert re.search(r"<span>0</span><img alt=\"colour bar\"[^>]*><span>50</span> height \(um\)", page)
+    image = _pictures(page)[0]
+    assert image.shape == (40, 60, 4)
+    assert (image[5:9, 10:20] == np.round(np.array([0.6, 0.6, 0.6, 0.3]) * 255)).all()
+    assert (np.delete(image[..., 3], np.s_[5:9], axis=0) == 255).all()
+    assert (image[0, 30, :3] == 0).all()  # height 0: copper's black whatever the light
+    plane = _pictures(build_report(title="t", height=HeightMap(np.add.outer(np.linspace(0.0, 50.0, 40), np.zeros(60)), 10.0)))[0]
+    light, top = 0.5, copper(1.0)  # a plane: the stretched shading is flat, mid-grey
+    np.testing.assert_allclose(plane[-1, 30, :3] / 255, 2 * light * top + (1 - 2 * light) * top**2, atol=1 / 255)
+
+
+def test_wrinkle_overlay_tints_each_wrinkle_and_labels_it_at_its_centroid():
+    """Two wrinkles drawn as labels: each tinted with its own colour, its centre line red, and
+    its id placed over the picture at its centroid (per cent of the field)."""
+    from types import SimpleNamespace
+
+    z = np.zeros((50, 80))
+    labels = np.zeros(z.shape, int)
+    labels[10:14, 10:70] = 1
+    labels[30:34, 20:60] = 2
+    lines = np.zeros(z.shape, bool)
+    lines[12, 10:70] = True
+    wrinkles = [SimpleNamespace(id=1, centroid_x_mm=0.4, centroid_y_mm=0.12), SimpleNamespace(id=2, centroid_x_mm=0.4, centroid_y_mm=0.32)]
+    measures = SimpleNamespace(labels=labels, lines=lines, wrinkles=wrinkles)
+    rgb, step = wrinkle_overlay_rgb(HeightMap(z, 10.0), measures)
+    assert step == 1 and rgb.shape == (50, 80, 3)
+    np.testing.assert_allclose(rgb[12, 30], (1.0, 0.0, 0.0))
+    blue, orange = np.array([31, 119, 180]) / 255, np.array([255, 127, 14]) / 255  # tab10's first two
+    np.testing.assert_allclose(rgb[11, 30], 0.65 * 0.5 + 0.35 * blue)  # a flat map shades mid-grey
+    np.testing.assert_allclose(rgb[31, 30], 0.65 * 0.5 + 0.35 * orange)
+    np.testing.assert_allclose(rgb[40, 30], (0.5, 0.5, 0.5))
+    from skintopo.report import wrinkle_overlay_picture
+
+    picture = wrinkle_overlay_picture(HeightMap(z, 10.0), measures)
+    np.testing.assert_allclose([label[:2] for label in picture["labels"]], [(50.0, 24.0), (50.0, 64.0)])  # of 0.8 x 0.5 mm
+    assert [label[2] for label in picture["labels"]] == ["1", "2"]

@@ -171,3 +171,43 @@ const view3d = (() => {
     const mean = total / Math.max(1, count);
     return Object.assign({}, state, {covered: count / (W * H), mean, spread: Math.sqrt(Math.max(0, squares / Math.max(1, count) - mean * mean)), checksum}); }};
 })();
+// Fractal dimension: each estimator's log-log points and its fitted line (whose slope gives
+// the table's D), on one pair of axes.
+(() => {
+  const canvas = document.getElementById('fractal');
+  if (!canvas || !all.fractal.length) return;
+  const ctx = canvas.getContext('2d'), w = canvas.width, h = canvas.height, left = 58, right = 10, top = 10, bottom = 40;
+  const xs = all.fractal.flatMap(r => r.x), ys = all.fractal.flatMap(r => r.y);
+  let x0 = Math.min(...xs), x1 = Math.max(...xs), y0 = Math.min(...ys), y1 = Math.max(...ys);
+  if (!(x1 > x0)) { x0 -= 1; x1 += 1; } if (!(y1 > y0)) { y0 -= 1; y1 += 1; }
+  const padX = 0.03 * (x1 - x0), padY = 0.03 * (y1 - y0);  // no point on the axes
+  x0 -= padX; x1 += padX; y0 -= padY; y1 += padY;
+  const X = v => left + (v - x0) / (x1 - x0) * (w - left - right), Y = v => h - bottom - (v - y0) / (y1 - y0) * (h - top - bottom);
+  ctx.strokeStyle = '#999'; ctx.fillStyle = '#333'; ctx.lineWidth = 1; ctx.font = '11px sans-serif';
+  ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, h - bottom); ctx.lineTo(w - right, h - bottom); ctx.stroke();
+  ctx.textAlign = 'right'; ctx.textBaseline = 'middle';
+  for (const t of ticks(y0, y1, 5)) { ctx.fillText(t.toString(), left - 6, Y(t)); ctx.beginPath(); ctx.moveTo(left - 3, Y(t)); ctx.lineTo(left, Y(t)); ctx.stroke(); }
+  ctx.textAlign = 'center'; ctx.textBaseline = 'top';
+  for (const t of ticks(x0, x1, 6)) { ctx.fillText(t.toString(), X(t), h - bottom + 5); ctx.beginPath(); ctx.moveTo(X(t), h - bottom); ctx.lineTo(X(t), h - bottom + 3); ctx.stroke(); }
+  ctx.fillText("ln(scale) (each method's own axis)", (left + w - right) / 2, h - 16);
+  ctx.save(); ctx.translate(12, (top + h - bottom) / 2); ctx.rotate(-Math.PI / 2); ctx.fillText('ln(measure)', 0, -4); ctx.restore();
+  const colours = ['#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b'];
+  ctx.textAlign = 'left'; ctx.textBaseline = 'middle';
+  ctx.save(); ctx.beginPath(); ctx.rect(left, top, w - left - right, h - top - bottom); ctx.clip();  // a fitted line may leave the points' range
+  all.fractal.forEach((r, i) => {
+    const colour = colours[i % colours.length], lo = Math.min(...r.x), hi = Math.max(...r.x);
+    ctx.fillStyle = colour; ctx.strokeStyle = colour;
+    r.x.forEach((x, k) => { ctx.beginPath(); ctx.arc(X(x), Y(r.y[k]), 3, 0, 2 * Math.PI); ctx.fill(); });
+    ctx.globalAlpha = 0.6; ctx.lineWidth = 1.5; ctx.beginPath();
+    ctx.moveTo(X(lo), Y(r.slope * lo + r.intercept)); ctx.lineTo(X(hi), Y(r.slope * hi + r.intercept)); ctx.stroke(); ctx.globalAlpha = 1;
+  });
+  ctx.restore();
+  const names = all.fractal.map(r => r.method + ': D = ' + (finite(r.dimension) ? r.dimension.toFixed(3) : 'not defined'));
+  ctx.fillStyle = 'rgba(255, 255, 255, 0.85)'; ctx.strokeStyle = '#ccc';
+  ctx.fillRect(left + 8, top + 2, Math.max(...names.map(n => ctx.measureText(n).width)) + 30, 16 * names.length + 6);
+  ctx.strokeRect(left + 8, top + 2, Math.max(...names.map(n => ctx.measureText(n).width)) + 30, 16 * names.length + 6);
+  names.forEach((name, i) => {
+    ctx.fillStyle = colours[i % colours.length];
+    ctx.beginPath(); ctx.arc(left + 18, top + 13 + 16 * i, 3, 0, 2 * Math.PI); ctx.fill(); ctx.fillText(name, left + 26, top + 13 + 16 * i);
+  });
+})();
