@@ -185,7 +185,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     syz -= y * sz  # myz
     sx -= x * s0  # mx
     sy -= y * s0  # my
-    solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, sx, sy, sxx, sxy, syy)], [c.ravel() for c in (sz, sxz, syz)])
+    solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, sx, sy, sxx, sxy, syy)], [c.ravel() for c in (sz, sxz, syz)], components=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         zeroth = (sz / s0).ravel()
         # Conditioning of the plane fit: det against (s0 * spread^2)^... compare with the
