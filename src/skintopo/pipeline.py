@@ -331,7 +331,11 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
         note = made.physics.convergence_note()
         if note and on_note is not None:
             on_note(note)
-    return measure_height(made.height, options, albedo=made.albedo, source=source, progress=step_progress)
+    height, albedo = made.height, made.albedo
+    # the images and every band's reconstruction (about 300 bytes a pixel) are not needed to
+    # measure: let them go first (a 20-megapixel field's peak memory is set in the measure)
+    del acquisition, made
+    return measure_height(height, options, albedo=albedo, source=source, progress=step_progress)
 
 
 def acquisition_summary(acquisition):

@@ -310,11 +310,13 @@ def centre_at(arc, points, where):
     return np.array([np.interp(where, arc, points[:, k]) for k in range(2)])
 
 
-def _bounding_box(points, pad):
+def _bounding_box(points, pad, origin=(0, 0)):
     """Slices of the bounding box of the true ``points``, widened by ``pad`` pixels (one
-    number, or one per axis) and clipped at the array's start."""
+    number, or one per axis) and clipped at the array's start; ``points`` may be a crop whose
+    first pixel is at ``origin`` (row, column) of the array the slices are for."""
     pad = np.broadcast_to(pad, 2)
     rows, columns = np.nonzero(points)
+    rows, columns = rows + origin[0], columns + origin[1]
     return (slice(max(0, rows.min() - pad[0]), rows.max() + pad[0] + 1),
             slice(max(0, columns.min() - pad[1]), columns.max() + pad[1] + 1))
 
@@ -406,6 +408,11 @@ class WrinkleField:
     def margin_px(self):
         return margin_pixels(self.settings.margin_um, self.height.spacing)
 
+    @cached_property
+    def extent_boxes(self):
+        """The bounding box (slices) of each extent, index = its label - 1."""
+        return scipy.ndimage.find_objects(self.extent_labels)
+
 
 def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings=WrinkleSettings()) -> WrinkleField:
     """The :class:`WrinkleField` of a height map and its segmentation."""
@@ -478,21 +485,31 @@ class WrinkleProperties:
 
     @cached_property
     def _box(self):
-        """The wrinkle's box (its walls and the frame's reach), its whole extent and the frame
-        settings."""
+        """The wrinkle's box (its walls and the frame's reach), its whole extent in that box
+        and the frame settings."""
         field, (dy, dx) = self._field, self._field.height.spacing
-        core = field.labels == self.label
-        whole = field.extent_labels == np.bincount(field.extent_labels[core]).argmax()
-        if np.count_nonzero(np.unique(field.labels[whole])) > 1:  # its extent touches another wrinkle's
-            whole &= field.nearest_core == self.label
+        # Worked on the boxes of the core and of its extent, never on the whole map: a field
+        # of many wrinkles would otherwise cost a map-sized mask (and a pass) per wrinkle.
+        core_box = self._region.slice
+        core = field.labels[core_box] == self.label
+        extent = np.bincount(field.extent_labels[core_box][core]).argmax()  # the core lies in its extent
+        extent_box = field.extent_boxes[extent - 1]
+        whole = field.extent_labels[extent_box] == extent
+        if np.count_nonzero(np.unique(field.labels[extent_box][whole])) > 1:  # its extent touches another wrinkle's
+            whole &= field.nearest_core[extent_box] == self.label
         axis = max(self._region.axis_major_length * min(dy, dx), dx)
         core_width = np.count_nonzero(core) * dx * dy / axis
         extent_width = np.count_nonzero(whole) * dx * dy / axis
         half_span = 0.75 * extent_width + field.settings.margin_um + 2 * max(dy, dx)
         extension = core_width + field.settings.along_closing_um
-        box = _bounding_box(whole, int((half_span + extension) / min(dy, dx)) + 3)
+        origin = (extent_box[0].start, extent_box[1].start)
+        box = _bounding_box(whole, int((half_span + extension) / min(dy, dx)) + 3, origin)
+        in_box = np.zeros(field.labels[box].shape, bool)  # the whole extent in the box's pixels (where they overlap)
+        shared = [slice(max(b.start, e.start), min(b.start + n, e.stop)) for b, e, n in zip(box, extent_box, in_box.shape)]
+        in_box[tuple(slice(c.start - b.start, c.stop - b.start) for c, b in zip(shared, box))] = \
+            whole[tuple(slice(c.start - e.start, c.stop - e.start) for c, e in zip(shared, extent_box))]
         options = dict(smoothing_um=field.settings.along_closing_um, extension_um=extension, half_span_um=half_span, step_um=0.5 * min(dy, dx))
-        return box, whole, options
+        return box, in_box, options
 
     @property
     def core(self):
@@ -505,9 +522,9 @@ class WrinkleProperties:
         """What :func:`depth_in_frame` reads, cut to the box (the height as spline coefficients)."""
         field = self._field
         box, whole, _ = self._box
-        near = scipy.ndimage.binary_dilation(whole[box], iterations=field.margin_px)
+        near = scipy.ndimage.binary_dilation(whole, iterations=field.margin_px)
         return (scipy.ndimage.spline_filter(field.z[box], order=3, mode="nearest"), field.reference[box], field.plateau[box],
-                field.around[box], (field.extent & ~whole)[box], near & field.height.mask[box], field.settings.along_closing_um)
+                field.around[box], field.extent[box] & ~whole, near & field.height.mask[box], field.settings.along_closing_um)
 
     def _depth_along(self, frame):
         """The depth in ``frame``, where it is the wrinkle's, and the floor profile."""
