@@ -152,25 +152,59 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     values = np.where(valid, z, 0.0)
     rows, columns = z.shape
     # Centred coordinates (pixels) keep the moment sums well conditioned; kept as a column
-    # and a row (broadcast), and the moment images made one at a time as they are smoothed,
-    # so that the filter holds about 20 field-sized arrays at its peak, not 40.
+    # and a row (broadcast).
     y = (np.arange(rows) - rows / 2)[:, None]
     x = (np.arange(columns) - columns / 2)[None, :]
-    if valid.all():
-        # The weight is 1 everywhere: its six moments 1, x, y, x^2, xy, y^2 are outer products
-        # of powers of y and of x, smoothed as 1-D factors (six 2-D smoothings saved).
-        u, v = gaussian_smooth_separable(y.T ** np.arange(3)[:, None], x ** np.arange(3)[:, None], sigmas)
-        products = ((values, None), (values, x), (values, y))
-        moments = np.empty((9, rows, columns))
-        for out, (power_y, power_x) in zip(moments, ((0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0))):
-            np.multiply(u[power_y][:, None], v[power_x][None, :], out=out)
-        gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas, out=moments[6:])
-    else:
-        weight = valid.astype(np.float64)
-        products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
-                    (values, x), (values, y))
-        moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
-                                  out=np.empty((len(products), rows, columns)))
+    plane, zeroth, det, s0 = (_full_field_plane if valid.all() else _masked_plane)(values, valid, x, y, sigmas)
+    with np.errstate(invalid="ignore"):
+        # Conditioning of the plane fit: det against the determinant of a full symmetric
+        # window, s0 * (s0 sigma_x^2) * (s0 sigma_y^2).
+        good = det > 1e-3 * s0**3 * sigmas[0] ** 2 * sigmas[1] ** 2
+    low = np.where(good, plane, zeroth)
+    reach = s0 > 1e-6 * s0.max()
+    return np.where(reach, low, np.nan)
+
+
+def _full_field_plane(values, valid, x, y, sigmas):
+    """The regression's plane heights where every point is valid: the weight is 1 everywhere,
+    so its moments about each point are outer products of 1-D smoothings (u of powers of y,
+    v of powers of x) and so are the cofactors of the 3 x 3 normal equations; the
+    determinant is even one outer product, u0 (u0 u_yy - u_y^2) (x) v0 (v0 v_xx - v_x^2).
+    Only the three data moments are 2-D smoothings, and the filter holds about 8 field-sized
+    arrays at its peak. Returns (plane, weighted mean, determinant, s0)."""
+    (u0, u1, u2), (v0, v1, v2) = gaussian_smooth_separable(y.T ** np.arange(3)[:, None], x ** np.arange(3)[:, None], sigmas)
+    y, x = y.ravel(), x.ravel()
+    uy, uyy = u1 - y * u0, u2 - 2 * y * u1 + y * y * u0  # moments about each row: sum w (y' - y), sum w (y' - y)^2
+    vx, vxx = v1 - x * v0, v2 - 2 * x * v1 + x * x * v0
+    rows, columns = u0.size, v0.size
+    sz, mxz, myz = gaussian_smooth((values * factor for factor in (1.0, x[None, :], y[:, None])), sigmas, out=np.empty((3, rows, columns)))
+    mxz -= x[None, :] * sz
+    myz -= y[:, None] * sz
+    # numerator of the intercept by the adjugate's first row (c00, c01, c02) . (sz, mxz, myz)
+    numerator = np.outer(u0 * uyy, v0 * vxx) - np.outer(uy * uy, vx * vx)  # c00 = mxx myy - mxy^2
+    numerator *= sz
+    mxz *= np.outer(uy * uy - u0 * uyy, v0 * vx)  # c01 = my mxy - mx myy
+    numerator += mxz
+    myz *= np.outer(u0 * uy, vx * vx - v0 * vxx)  # c02 = mx mxy - my mxx
+    numerator += myz
+    det = np.outer(u0 * (u0 * uyy - uy * uy), v0 * (v0 * vxx - vx * vx))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        numerator /= det
+        s0 = np.outer(u0, v0)
+        return numerator, sz / s0, det, s0
+
+
+def _masked_plane(values, valid, x, y, sigmas):
+    """The regression's plane heights with missing points: the nine moments of the weight
+    (1 where valid) and of the data, each a 2-D smoothing, made one at a time as they are
+    smoothed (the filter holds about 20 field-sized arrays at its peak). Returns (plane,
+    weighted mean, determinant, s0)."""
+    rows, columns = values.shape
+    weight = valid.astype(np.float64)
+    products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
+                (values, x), (values, y))
+    moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
+                              out=np.empty((len(products), rows, columns)))
     s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = moments
     # Moments about each output point (x0, y0), in place (each before the sums it reads change).
     # The operations are those of mxx = sxx - 2 x sx + x^2 s0 etc. in the same order (same rounding).
@@ -187,14 +221,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     sy -= y * s0  # my
     solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, sx, sy, sxx, sxy, syy)], [c.ravel() for c in (sz, sxz, syz)], components=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        zeroth = (sz / s0).ravel()
-        # Conditioning of the plane fit: det against (s0 * spread^2)^... compare with the
-        # determinant of a full symmetric window, s0 * (s0 sigma_x^2) * (s0 sigma_y^2).
-        full = s0.ravel() ** 3 * sigmas[0] ** 2 * sigmas[1] ** 2
-        good = det > 1e-3 * full
-    low = np.where(good, solution[0], zeroth).reshape(rows, columns)
-    reach = s0 > 1e-6 * s0.max()
-    return np.where(reach, low, np.nan)
+        return solution[0].reshape(rows, columns), sz / s0, det.reshape(rows, columns), s0
 
 
 def gaussian_highpass(height: HeightMap, cutoff_um):
