@@ -146,6 +146,7 @@ def spectral_correction(normals_by_band, spacing, *, segmentation: WrinkleSegmen
         combined = tuple(combined_slopes({band: slopes[band][axis] for band in REQUIRED_BANDS}) for axis in (0, 1))
         combined_height = integrate_slopes(*combined, spacing, mask=mask, method=integrator)
         segmentation = segment_wrinkles(combined_height, **segmentation_options)
+        del combined, combined_height  # 25 bytes a pixel not needed by the correction itself
     corrected, z_red, z_a = correct_slopes(
         slopes["red"], slopes["green"], slopes["blue"], segmentation.extent, spacing, method=method, integrator=integrator, mask=mask
     )

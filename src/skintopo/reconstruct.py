@@ -33,7 +33,7 @@ class BandReconstruction:
 
     band: str
     stereo: PhotometricStereoResult
-    height: HeightMap
+    height: HeightMap | None  # None when reconstructed without integration
     seconds_normals: float
     seconds_integration: float
     near_field: object = None  # the NearFieldResult of a device acquisition (normals and integration alternate: all time in seconds_normals)
@@ -76,7 +76,7 @@ def band_images(acquisition: Acquisition, band, separation=None):
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None, start=None):
+                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None, start=None, integrate=True):
     """Photometric stereo and integration for one band of ``acquisition``.
 
     ``highlights="cross-band"`` leaves out the observations that :func:`specular_separation`
@@ -85,7 +85,9 @@ def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEG
     fits every observation the shadow and saturation rules keep. The height map keeps only pixels inside the acquisition mask
     with a valid normal. ``start``: with a device, another band's :class:`BandReconstruction`
     of the same capture, whose depth and scale the near-field solver starts from
-    (:func:`skintopo.nearfield.near_field_photometric_stereo`).
+    (:func:`skintopo.nearfield.near_field_photometric_stereo`). ``integrate=False``: normals
+    and albedo only, the height None (when the caller integrates the normals itself, as the
+    spectral correction does; a device's near-field solver always makes the height).
     """
     if highlights not in HIGHLIGHT_MODES:
         raise SkinTopoError(f"unknown highlight handling {highlights!r}; choose from {list(HIGHLIGHT_MODES)}")
@@ -98,7 +100,7 @@ def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEG
     start = time.perf_counter()
     stereo = photometric_stereo(images, lights, mask=acquisition.mask, shadow_fraction=shadow_fraction, solver=solver, highlights=flagged)
     middle = time.perf_counter()
-    height = integrate_normals(stereo.normals, acquisition.pixel_um, mask=stereo.valid, method=integrator)
+    height = integrate_normals(stereo.normals, acquisition.pixel_um, mask=stereo.valid, method=integrator) if integrate else None
     end = time.perf_counter()
     return BandReconstruction(band, stereo, height, middle - start, end - middle)
 
