@@ -110,6 +110,26 @@ def test_invalid_acquisition_stops_before_any_output(tmp_path, capsys):
     assert "acquisition.json" in capsys.readouterr().err and not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("command", ["measure", "correct", "reconstruct"])
+def test_a_field_larger_than_memory_is_refused_naming_the_size_needed(tmp_path, capsys, monkeypatch, command):
+    """With 1 GiB available, a 96 x 96 field (16 images) fits, and with 10 MiB it does not:
+    the command stops before reading the other images and writes nothing, and the message
+    names the field, the memory needed (0.3 GiB baseline + pixels x (4 bytes x 16 images +
+    the command's figure)) and the memory available."""
+    from skintopo.pipeline import PROCESSING_BYTES_PER_PIXEL
+
+    acquisition = tmp_path / "acq"
+    assert main(["synth", "-o", str(acquisition), "--size", "96", "--no-interreflection", "-q"]) == 0
+    monkeypatch.setattr("skintopo.acquisition.images.available_memory", lambda: 2**30)
+    assert main([command, str(acquisition), "-o", str(tmp_path / "fits"), "-q"]) == 0
+    monkeypatch.setattr("skintopo.acquisition.images.available_memory", lambda: 10 * 2**20)
+    assert main([command, str(acquisition), "-o", str(tmp_path / "out"), "-q"]) == 2
+    need = (0.3 * 2**30 + 96 * 96 * (4 * 16 + PROCESSING_BYTES_PER_PIXEL[command])) / 2**30
+    message = capsys.readouterr().err
+    assert f"96 x 96 pixels with 16 images needs about {need:.1f} GiB" in message and "0.0 GiB are available" in message
+    assert "acquisition.json" in message and not (tmp_path / "out").exists()
+
+
 def test_measure_command(tmp_path, capsys):
     z = fbm(128, 0.6, 0) * 30
     HeightMap(z, 5.0).save(tmp_path / "h.x3p")

@@ -60,7 +60,7 @@ __all__ = ["BANDS", "DEFAULT_SATURATION", "MANIFEST_NAME", "RAW_SUFFIXES", "Acqu
            "load_acquisition", "read_image", "write_acquisition"]
 
 
-def load_acquisition(path, *, pixel_um=None, bands=None, saturation=DEFAULT_SATURATION):
+def load_acquisition(path, *, pixel_um=None, bands=None, saturation=DEFAULT_SATURATION, bytes_per_pixel=None):
     """Read and validate an acquisition folder.
 
     Parameters
@@ -75,6 +75,11 @@ def load_acquisition(path, *, pixel_um=None, bands=None, saturation=DEFAULT_SATU
     saturation : float
         Observations at or above this fraction of the sensor's full scale are marked
         saturated (NaN) and left out of the fit.
+    bytes_per_pixel : float, optional
+        Memory that processing the acquisition will need per pixel beyond its images (e.g.
+        :data:`skintopo.pipeline.PROCESSING_BYTES_PER_PIXEL`). When given, a field that will
+        not fit in the memory available is refused once its first image is read, naming the
+        size needed.
 
     Returns
     -------
@@ -87,13 +92,13 @@ def load_acquisition(path, *, pixel_um=None, bands=None, saturation=DEFAULT_SATU
     """
     path = Path(path)
     if path.is_file() and path.suffix.lower() == ".json":
-        return load_manifest(path, pixel_um, bands, saturation)
+        return load_manifest(path, pixel_um, bands, saturation, bytes_per_pixel)
     if not path.is_dir():
         raise AcquisitionError(path, ["no such acquisition folder or manifest"])
     if (path / MANIFEST_NAME).is_file():
-        return load_manifest(path / MANIFEST_NAME, pixel_um, bands, saturation)
+        return load_manifest(path / MANIFEST_NAME, pixel_um, bands, saturation, bytes_per_pixel)
     if (path / "filenames.txt").is_file() and (path / "light_directions.txt").is_file():
-        return load_diligent(path, pixel_um, bands, saturation)
+        return load_diligent(path, pixel_um, bands, saturation, bytes_per_pixel)
     raise AcquisitionError(
         path, [f"neither {MANIFEST_NAME} nor a DiLiGenT layout (filenames.txt, light_directions.txt) found"]
     )

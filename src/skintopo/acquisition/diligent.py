@@ -23,7 +23,7 @@ def _read_table(path, columns, problems):
     return table
 
 
-def load_diligent(folder, pixel_um, bands, saturation):
+def load_diligent(folder, pixel_um, bands, saturation, bytes_per_pixel=None):
     problems = []
     names = (folder / "filenames.txt").read_text(encoding="utf-8").split()
     lights = _read_table(folder / "light_directions.txt", 3, problems)
@@ -43,7 +43,9 @@ def load_diligent(folder, pixel_um, bands, saturation):
         raise AcquisitionError(folder, problems)
     wanted = check_bands_requested(folder, bands, set(BANDS))
 
-    cache = ImageCache(problems)
+    # held at once: the raw RGB 16-bit files (1.5 float32 images each) and a float32 image per band and file
+    images = (1.5 + len(wanted)) * len(names)
+    cache = ImageCache(problems, None if bytes_per_pixel is None else (folder, images, bytes_per_pixel))
     raw = [cache.get(folder / n) for n in names]
     if not problems and raw[0].ndim != 3:
         problems.append(f"{folder / names[0]}: DiLiGenT images are RGB; this one has a single channel")

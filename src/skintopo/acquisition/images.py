@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
-from skintopo.errors import SkinTopoError
+from skintopo.errors import AcquisitionError, SkinTopoError
 from skintopo.formats import read_png
 
 
@@ -72,13 +73,48 @@ def read_raw(path):
         raise SkinTopoError(f"{path}: not a readable camera raw file ({exc.__class__.__name__}: {exc})") from None
 
 
-class ImageCache:
-    """Reads each file once, checking that all images share one shape and one pixel type."""
+BASELINE_BYTES = 0.3 * 2**30  # Python, NumPy, SciPy and scikit-image loaded, before any image
 
-    def __init__(self, problems):
+
+def available_memory():
+    """Bytes of memory this process can still take: MemAvailable of /proc/meminfo (Linux),
+    elsewhere the machine's physical memory."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(source, shape, images, bytes_per_pixel):
+    """Refuse a field that does not fit: ``images`` float32 images of ``shape`` plus the
+    ``bytes_per_pixel`` that processing them needs beyond the images (the caller's figure)
+    and the interpreter's baseline, against :func:`available_memory`. Raises
+    :class:`AcquisitionError` naming the size needed and the size available."""
+    rows, columns = shape
+    need = rows * columns * (4 * images + bytes_per_pixel) + BASELINE_BYTES
+    have = available_memory()
+    if need > have:
+        raise AcquisitionError(source, [f"a field of {columns} x {rows} pixels with {images:g} images needs about {need / 2**30:.1f} GiB "
+                                        f"of memory to process; {have / 2**30:.1f} GiB are available (crop the images, or use a "
+                                        "machine with more memory)"])
+
+
+class ImageCache:
+    """Reads each file once, checking that all images share one shape and one pixel type.
+
+    ``memory``: (source, images, bytes per pixel): once the first image gives the field's
+    size, :func:`check_memory` refuses a field that will not fit, before the other images are
+    read."""
+
+    def __init__(self, problems, memory=None):
         self.problems = problems
         self.images = {}
         self.reference = None  # (file, shape, dtype)
+        self.memory = memory
 
     def get(self, path):
         if path in self.images:
@@ -91,6 +127,9 @@ class ImageCache:
         if image is not None:
             if self.reference is None:
                 self.reference = (path.name, image.shape[:2], image.dtype)
+                if self.memory is not None:
+                    source, images, bytes_per_pixel = self.memory
+                    check_memory(source, image.shape[:2], images, bytes_per_pixel)
             else:
                 ref_name, ref_shape, ref_dtype = self.reference
                 if image.shape[:2] != ref_shape:

@@ -38,7 +38,7 @@ _MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_s
                   "device"}
 
 
-def load_manifest(manifest_path, pixel_um, bands, saturation):
+def load_manifest(manifest_path, pixel_um, bands, saturation, bytes_per_pixel=None):
     folder = manifest_path.parent
     try:
         manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
@@ -157,7 +157,8 @@ def load_manifest(manifest_path, pixel_um, bands, saturation):
         if len(set(leds)) != len(leds):
             problems.append(f"{name}: band {band}: each LED may have one image per band, got {sorted(leds)}")
 
-    cache = ImageCache(problems)
+    images = sum(1 for entry in parsed if entry[0] in wanted)
+    cache = ImageCache(problems, None if bytes_per_pixel is None else (manifest_path, images, bytes_per_pixel))
     dark = cache.get(folder / dark_file) if isinstance(dark_file, str) and dark_file else None
 
     def linear(image, channel, band):

@@ -18,7 +18,7 @@ def run(args):
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
-    acquisition = shared.load(args, None)
+    acquisition = shared.load(args, None, "correct")
     options = MeasureOptions(reconstruction=shared.reconstruction_options(args), height=HeightOptions(args.method, args.physics_kernels),
                              segmentation=shared.segmentation_options(args))
     made = acquisition_height(acquisition, options, shared.band_progress(args), shared.step_progress(args, desc="physics"))

@@ -146,10 +146,13 @@ def measure_options(args, method=None):
     )
 
 
-def load(args, bands):
+def load(args, bands, command):
+    """The acquisition of ``args``, refused when it will not fit in memory for ``command``."""
     from skintopo.acquisition import load_acquisition
+    from skintopo.pipeline import PROCESSING_BYTES_PER_PIXEL
 
-    acquisition = load_acquisition(args.acquisition, pixel_um=args.pixel_um, bands=bands, saturation=args.saturation)
+    acquisition = load_acquisition(args.acquisition, pixel_um=args.pixel_um, bands=bands, saturation=args.saturation,
+                                   bytes_per_pixel=PROCESSING_BYTES_PER_PIXEL[command])
     if acquisition.pixel_um_assumed:
         say(args, f"note: {args.acquisition} has no pixel size; assuming 1 um per pixel (give --pixel-um)")
     return acquisition

@@ -20,7 +20,7 @@ def run(args):
     bands = None if args.band == "all" else (["red", "green", "blue"] if derived else [args.band])
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
-    acquisition = shared.load(args, bands)
+    acquisition = shared.load(args, bands, "reconstruct")
     seconds_load = time.perf_counter() - started
     options = shared.reconstruction_options(args)
     results = reconstruct_bands(acquisition, options, [SPECULAR_FREE] if derived else None, shared.band_progress(args))
