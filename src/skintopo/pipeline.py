@@ -353,8 +353,8 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
         if note and on_note is not None:
             on_note(note)
     height, albedo = made.height, made.albedo
-    # the images and every band's reconstruction (about 300 bytes a pixel) are not needed to
-    # measure: let them go first (a 20-megapixel field's peak memory is set in the measure)
+    # the images and the bands' normals and albedos (about 170 bytes a pixel with 16 images)
+    # are not needed to measure the height: let them go first
     del acquisition, made
     return measure_height(height, options, albedo=albedo, source=source, progress=step_progress)
 
