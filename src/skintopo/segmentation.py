@@ -54,7 +54,7 @@ from skintopo.defaults import (
     DEFAULT_STRAIGHT_VALLEY_UM,
 )
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, block_mean, coarse_areal_gaussian_filter, gaussian_bandpass, level, line_segment_closing
+from skintopo.filters import areal_gaussian_filter, block_mean, coarse_areal_gaussian_filter, gaussian_bandpass, level, line_segment_closings
 from skintopo.heightmap import HeightMap, pixel_spacing
 
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
@@ -193,7 +193,7 @@ def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
     number of pixels) and repeated back onto the pixels."""
     factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
     z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
-    closed = np.min([line_segment_closing(z, spacing, length_um, angle, coarse_valid) for angle in STRAIGHT_VALLEY_DIRECTIONS], axis=0)
+    closed = np.min(line_segment_closings(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid), axis=0)
     return _expanded(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
 
 
