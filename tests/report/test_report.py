@@ -3,12 +3,13 @@
 import base64
 import json
 import re
+from types import SimpleNamespace
 
 import numpy as np
 
 from skintopo.heightmap import HeightMap
 from skintopo.pipeline import crop_region
-from skintopo.report import build_report, copper, hillshade, wrinkle_overlay_rgb
+from skintopo.report import build_report, copper, hillshade, wrinkle_overlay_picture, wrinkle_overlay_rgb
 from skintopo.synth import make_surface, preset_spec
 from skintopo.texture import measure_texture
 
@@ -85,9 +86,11 @@ def _pictures(page):
 
 def test_height_map_picture_colours_heights_and_shows_missing_points():
     """The height map: the colour bar spans the finite heights; missing points are
-    transparent grey, the rest opaque; the highest point's colour is copper's top end under
-    the soft-light shading, the lowest copper's black."""
-    z = np.add.outer(np.linspace(0.0, 50.0, 40), np.zeros(60))  # a ramp down the image
+    transparent grey, the rest opaque; the lowest point is copper's black whatever the light,
+    and on a plane (flat shading, mid-grey after the stretch) the highest is copper's top end
+    under the soft-light blend 2 l c + (1 - 2 l) c^2."""
+    ramp = np.add.outer(np.linspace(0.0, 50.0, 40), np.zeros(60))  # a plane rising down the image
+    z = ramp.copy()
     z[5:9, 10:20] = np.nan
     page = build_report(title="t", height=HeightMap(z, 10.0))
     assert re.search(r"<span>0</span><img alt=\"colour bar\"[^>]*><span>50</span> height \(um\)", page)
@@ -95,17 +98,15 @@ def test_height_map_picture_colours_heights_and_shows_missing_points():
     assert image.shape == (40, 60, 4)
     assert (image[5:9, 10:20] == np.round(np.array([0.6, 0.6, 0.6, 0.3]) * 255)).all()
     assert (np.delete(image[..., 3], np.s_[5:9], axis=0) == 255).all()
-    assert (image[0, 30, :3] == 0).all()  # height 0: copper's black whatever the light
-    plane = _pictures(build_report(title="t", height=HeightMap(np.add.outer(np.linspace(0.0, 50.0, 40), np.zeros(60)), 10.0)))[0]
-    light, top = 0.5, copper(1.0)  # a plane: the stretched shading is flat, mid-grey
+    assert (image[0, 30, :3] == 0).all()
+    plane = _pictures(build_report(title="t", height=HeightMap(ramp, 10.0)))[0]
+    light, top = 0.5, copper(1.0)
     np.testing.assert_allclose(plane[-1, 30, :3] / 255, 2 * light * top + (1 - 2 * light) * top**2, atol=1 / 255)
 
 
 def test_wrinkle_overlay_tints_each_wrinkle_and_labels_it_at_its_centroid():
     """Two wrinkles drawn as labels: each tinted with its own colour, its centre line red, and
     its id placed over the picture at its centroid (per cent of the field)."""
-    from types import SimpleNamespace
-
     z = np.zeros((50, 80))
     labels = np.zeros(z.shape, int)
     labels[10:14, 10:70] = 1
@@ -121,8 +122,6 @@ def test_wrinkle_overlay_tints_each_wrinkle_and_labels_it_at_its_centroid():
     np.testing.assert_allclose(rgb[11, 30], 0.65 * 0.5 + 0.35 * blue)  # a flat map shades mid-grey
     np.testing.assert_allclose(rgb[31, 30], 0.65 * 0.5 + 0.35 * orange)
     np.testing.assert_allclose(rgb[40, 30], (0.5, 0.5, 0.5))
-    from skintopo.report import wrinkle_overlay_picture
-
     picture = wrinkle_overlay_picture(HeightMap(z, 10.0), measures)
     np.testing.assert_allclose([label[:2] for label in picture["labels"]], [(50.0, 24.0), (50.0, 64.0)])  # of 0.8 x 0.5 mm
     assert [label[2] for label in picture["labels"]] == ["1", "2"]
