@@ -109,13 +109,23 @@ def _filled(z):
     return np.where(missing, np.nanmedian(z) if (~missing).any() else 0.0, z), missing
 
 
+def _finite_range(values, missing):
+    """The finite values' lowest and highest (0, 1 when there are none)."""
+    return (float(np.min(values[~missing])), float(np.max(values[~missing]))) if (~missing).any() else (0.0, 1.0)
+
+
+def _scaled(values, low, high):
+    """``values`` mapped from [low, high] to [0, 1] (zeros when the range is empty)."""
+    return np.clip((values - low) / (high - low), 0, 1) if high > low else np.zeros(np.shape(values))
+
+
 def shaded_height_picture(height):
     """The height map: colour = height (copper, over the finite range), shading = slope
     (:func:`hillshade`, blended as soft light), missing points transparent grey."""
     z, step = _decimate(height.z, DISPLAY_PIXELS)
     filled, missing = _filled(z)
-    low, high = (float(np.min(z[~missing])), float(np.max(z[~missing]))) if (~missing).any() else (0.0, 1.0)
-    rgb = copper((filled - low) / (high - low) if high > low else np.zeros(z.shape))
+    low, high = _finite_range(z, missing)
+    rgb = copper(_scaled(filled, low, high))
     light = hillshade(filled, (height.spacing[0] * step, height.spacing[1] * step))[..., None]
     rgba = np.concatenate([2 * light * rgb + (1 - 2 * light) * rgb**2, np.ones(z.shape + (1,))], axis=-1)  # soft light
     rgba[missing] = MISSING_RGBA
@@ -125,9 +135,9 @@ def shaded_height_picture(height):
 def albedo_picture(albedo, height):
     """The albedo in grey levels over its finite range, missing points transparent grey."""
     values, _ = _decimate(np.asarray(albedo, float), DISPLAY_PIXELS)
-    missing = ~np.isfinite(values)
-    low, high = (float(np.min(values[~missing])), float(np.max(values[~missing]))) if (~missing).any() else (0.0, 1.0)
-    grey = np.clip((np.where(missing, low, values) - low) / (high - low), 0, 1) if high > low else np.zeros(values.shape)
+    filled, missing = _filled(values)
+    low, high = _finite_range(values, missing)
+    grey = _scaled(filled, low, high)
     rgba = np.concatenate([np.repeat(grey[..., None], 3, axis=-1), np.ones(values.shape + (1,))], axis=-1)
     rgba[missing] = MISSING_RGBA
 

@@ -493,7 +493,8 @@ class WrinkleProperties:
         extent = np.bincount(field.extent_labels[core_box][core]).argmax()  # the core lies in its extent
         extent_box = field.extent_boxes[extent - 1]
         whole = field.extent_labels[extent_box] == extent
-        if np.count_nonzero(np.unique(field.labels[extent_box][whole])) > 1:  # its extent touches another wrinkle's
+        touches = np.count_nonzero(np.unique(field.labels[extent_box][whole])) > 1  # its extent touches another wrinkle's
+        if touches:
             whole &= field.nearest_core[extent_box] == self.label
         axis = max(self._region.axis_major_length * min(dy, dx), dx)
         core_width = np.count_nonzero(core) * dx * dy / axis
@@ -502,10 +503,9 @@ class WrinkleProperties:
         extension = core_width + field.settings.along_closing_um
         origin = (extent_box[0].start, extent_box[1].start)
         box = _bounding_box(whole, int((half_span + extension) / min(dy, dx)) + 3, origin)
-        in_box = np.zeros(field.labels[box].shape, bool)  # the whole extent in the box's pixels (where they overlap)
-        shared = [slice(max(b.start, e.start), min(b.start + n, e.stop)) for b, e, n in zip(box, extent_box, in_box.shape)]
-        in_box[tuple(slice(c.start - b.start, c.stop - b.start) for c, b in zip(shared, box))] = \
-            whole[tuple(slice(c.start - e.start, c.stop - e.start) for c, e in zip(shared, extent_box))]
+        in_box = field.extent_labels[box] == extent  # the same extent, in the box's pixels
+        if touches:
+            in_box &= field.nearest_core[box] == self.label
         options = dict(smoothing_um=field.settings.along_closing_um, extension_um=extension, half_span_um=half_span, step_um=0.5 * min(dy, dx))
         return box, in_box, options
 

@@ -16,18 +16,22 @@ function ticks(lo, hi, count) {  // round steps (1, 2, 5 x 10^k) covering [lo, h
   for (let t = Math.ceil(lo / step) * step; t <= hi + 1e-9 * step; t += step) out.push(+t.toFixed(10));
   return out;
 }
+function drawAxes(ctx, frame, X, Y, xTicks, yTicks, xLabel, yLabel) {  // the left and bottom axes of a 2-D plot, ticks and labels
+  const {w, h, left, right, top, bottom} = frame;
+  ctx.clearRect(0, 0, w, h); ctx.strokeStyle = '#999'; ctx.fillStyle = '#333'; ctx.lineWidth = 1; ctx.font = '11px sans-serif';
+  ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, h - bottom); ctx.lineTo(w - right, h - bottom); ctx.stroke();
+  ctx.textAlign = 'right'; ctx.textBaseline = 'middle';
+  for (const t of yTicks) { ctx.fillText(t.toString(), left - 6, Y(t)); ctx.beginPath(); ctx.moveTo(left - 3, Y(t)); ctx.lineTo(left, Y(t)); ctx.stroke(); }
+  ctx.textAlign = 'center'; ctx.textBaseline = 'top';
+  for (const t of xTicks) { ctx.fillText(t.toString(), X(t), h - bottom + 5); ctx.beginPath(); ctx.moveTo(X(t), h - bottom); ctx.lineTo(X(t), h - bottom + 3); ctx.stroke(); }
+  ctx.fillText(xLabel, (left + w - right) / 2, h - bottom + 20);
+  ctx.save(); ctx.translate(12, (top + h - bottom) / 2); ctx.rotate(-Math.PI / 2); ctx.fillText(yLabel, 0, -4); ctx.restore();
+}
 function drawProfile() {
   const row = grid.z[+slider.value], ctx = profile.getContext('2d'), w = profile.width, h = profile.height;
   const left = 58, right = 10, top = 10, bottom = 34, length = (row.length - 1) * grid.dy / 1000;  // mm
   const X = mm => left + mm / (length || 1) * (w - left - right), Y = v => h - bottom - (v - zlo) / (zhi - zlo) * (h - top - bottom);
-  ctx.clearRect(0, 0, w, h); ctx.strokeStyle = '#999'; ctx.fillStyle = '#333'; ctx.lineWidth = 1; ctx.font = '11px sans-serif';
-  ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, h - bottom); ctx.lineTo(w - right, h - bottom); ctx.stroke();
-  ctx.textAlign = 'right'; ctx.textBaseline = 'middle';
-  for (const t of ticks(zlo, zhi, 4)) { ctx.fillText(t.toString(), left - 6, Y(t)); ctx.beginPath(); ctx.moveTo(left - 3, Y(t)); ctx.lineTo(left, Y(t)); ctx.stroke(); }
-  ctx.textAlign = 'center'; ctx.textBaseline = 'top';
-  for (const t of ticks(0, length, 6)) { ctx.fillText(t.toString(), X(t), h - bottom + 5); ctx.beginPath(); ctx.moveTo(X(t), h - bottom); ctx.lineTo(X(t), h - bottom + 3); ctx.stroke(); }
-  ctx.fillText('y (mm, top to bottom)', (left + w - right) / 2, h - 14);
-  ctx.save(); ctx.translate(12, (top + h - bottom) / 2); ctx.rotate(-Math.PI / 2); ctx.fillText('height (um)', 0, -4); ctx.restore();
+  drawAxes(ctx, {w, h, left, right, top, bottom}, X, Y, ticks(0, length, 6), ticks(zlo, zhi, 4), 'y (mm, top to bottom)', 'height (um)');
   ctx.strokeStyle = '#7a3b12'; ctx.lineWidth = 1.5; ctx.beginPath(); let pen = false;
   row.forEach((v, i) => { if (!finite(v)) { pen = false; return; }
     const x = X(i * grid.dy / 1000), y = Y(v);
@@ -183,14 +187,7 @@ const view3d = (() => {
   const padX = 0.03 * (x1 - x0), padY = 0.03 * (y1 - y0);  // no point on the axes
   x0 -= padX; x1 += padX; y0 -= padY; y1 += padY;
   const X = v => left + (v - x0) / (x1 - x0) * (w - left - right), Y = v => h - bottom - (v - y0) / (y1 - y0) * (h - top - bottom);
-  ctx.strokeStyle = '#999'; ctx.fillStyle = '#333'; ctx.lineWidth = 1; ctx.font = '11px sans-serif';
-  ctx.beginPath(); ctx.moveTo(left, top); ctx.lineTo(left, h - bottom); ctx.lineTo(w - right, h - bottom); ctx.stroke();
-  ctx.textAlign = 'right'; ctx.textBaseline = 'middle';
-  for (const t of ticks(y0, y1, 5)) { ctx.fillText(t.toString(), left - 6, Y(t)); ctx.beginPath(); ctx.moveTo(left - 3, Y(t)); ctx.lineTo(left, Y(t)); ctx.stroke(); }
-  ctx.textAlign = 'center'; ctx.textBaseline = 'top';
-  for (const t of ticks(x0, x1, 6)) { ctx.fillText(t.toString(), X(t), h - bottom + 5); ctx.beginPath(); ctx.moveTo(X(t), h - bottom); ctx.lineTo(X(t), h - bottom + 3); ctx.stroke(); }
-  ctx.fillText("ln(scale) (each method's own axis)", (left + w - right) / 2, h - 16);
-  ctx.save(); ctx.translate(12, (top + h - bottom) / 2); ctx.rotate(-Math.PI / 2); ctx.fillText('ln(measure)', 0, -4); ctx.restore();
+  drawAxes(ctx, {w, h, left, right, top, bottom}, X, Y, ticks(x0, x1, 6), ticks(y0, y1, 5), "ln(scale) (each method's own axis)", 'ln(measure)');
   const colours = ['#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b'];
   ctx.textAlign = 'left'; ctx.textBaseline = 'middle';
   ctx.save(); ctx.beginPath(); ctx.rect(left, top, w - left - right, h - top - bottom); ctx.clip();  // a fitted line may leave the points' range
@@ -203,9 +200,8 @@ const view3d = (() => {
   });
   ctx.restore();
   const names = all.fractal.map(r => r.method + ': D = ' + (finite(r.dimension) ? r.dimension.toFixed(3) : 'not defined'));
-  ctx.fillStyle = 'rgba(255, 255, 255, 0.85)'; ctx.strokeStyle = '#ccc';
-  ctx.fillRect(left + 8, top + 2, Math.max(...names.map(n => ctx.measureText(n).width)) + 30, 16 * names.length + 6);
-  ctx.strokeRect(left + 8, top + 2, Math.max(...names.map(n => ctx.measureText(n).width)) + 30, 16 * names.length + 6);
+  const legend = [left + 8, top + 2, Math.max(...names.map(n => ctx.measureText(n).width)) + 30, 16 * names.length + 6];
+  ctx.fillStyle = 'rgba(255, 255, 255, 0.85)'; ctx.strokeStyle = '#ccc'; ctx.fillRect(...legend); ctx.strokeRect(...legend);
   names.forEach((name, i) => {
     ctx.fillStyle = colours[i % colours.length];
     ctx.beginPath(); ctx.arc(left + 18, top + 13 + 16 * i, 3, 0, 2 * Math.PI); ctx.fill(); ctx.fillText(name, left + 26, top + 13 + 16 * i);
