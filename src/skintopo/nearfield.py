@@ -23,8 +23,9 @@ variational solver):
    distance visible), or by the working distance (``scale="working-distance"``: the median
    depth is the working distance);
 
-until the depth changes by less than ``tolerance_um`` RMS (default 0.1 um), starting from the
-plane at the working distance.
+until the depth changes by less than ``tolerance_um`` RMS (default 0.1 um), or the distance
+still to go that the last two changes imply (:func:`remaining_change_um`) is below it,
+starting from the plane at the working distance.
 
 The result is resampled to a regular grid in the skin plane (:func:`surface_grid`): the
 device's pixel footprint at the working distance, centred on the optical axis, heights in
@@ -337,7 +338,8 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         1000 px: about 0.6 s per band instead of 1.1; after form removal the error is that of a
         start from scratch, 3.47 against 3.36 um at 256 px, tests/nearfield/test_nearfield.py).
     tolerance_um, max_iterations
-        Stop when the RMS depth change is below ``tolerance_um``.
+        Stop when the RMS depth change, or the distance to the fixed point it implies
+        (:func:`remaining_change_um`), is below ``tolerance_um``.
 
     Returns
     -------
