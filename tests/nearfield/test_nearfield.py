@@ -8,7 +8,7 @@ import pytest
 from skintopo.device import paper_device
 from skintopo.filters import polynomial_form, sphere_fit
 from skintopo.height import integrate_normals
-from skintopo.nearfield import near_field_photometric_stereo
+from skintopo.nearfield import near_field_photometric_stereo, remaining_change_um
 from skintopo.normals import photometric_stereo
 from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
 from skintopo.synth.nearfield import camera_grid_surface, device_surface, simulate_device_acquisition
@@ -67,6 +67,22 @@ def test_a_band_started_from_another_bands_depth_reaches_its_own_height():
     assert len(started.changes_um) <= len(alone.changes_um)
     assert _after_form(started.height, truth) < _after_form(alone.height, truth) + 0.3
     assert sphere_fit(started.height)[0] / 1000 == pytest.approx(80.0, rel=5e-3)
+
+
+@pytest.mark.parametrize("q", [0.05, 0.3, 0.8])
+def test_remaining_change_is_the_distance_to_the_fixed_point_of_a_linear_contraction(q):
+    """For x_{k+1} = q x_k + c the distance still to go after a step is exactly q / (1 - q)
+    times that step (the fixed point c / (1 - q) computed here, not by the function);
+    before two changes, or while the changes grow, nothing is promised (infinity)."""
+    c, x = 3.0, 0.0
+    changes = []
+    for _ in range(4):
+        new = q * x + c
+        changes.append(abs(new - x))
+        x = new
+    assert remaining_change_um(changes) == pytest.approx(abs(c / (1 - q) - x), rel=1e-9)
+    assert remaining_change_um(changes[:1]) == np.inf
+    assert remaining_change_um([1.0, 2.0]) == np.inf
 
 
 def test_working_distance_scale_is_off_by_the_depth_the_forehead_falls_away():
