@@ -146,6 +146,8 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
         surface.height.save(truth / "height.x3p")
         np.save(truth / "normals.npy", surface.normals.astype(np.float32))
         write_label_image(truth / "wrinkles.png", surface.wrinkle_labels)
+        for name, values in (info or {}).get("chromophores", {}).items():  # melanin.npy, haemoglobin.npy, baseline.npy
+            np.save(truth / f"{name}.npy", np.asarray(values, dtype=np.float32))
         description = {
             "units": {"lengths": "um", "curvature": "1/mm", "angles": "degrees"},
             "seed": seed,
@@ -161,10 +163,13 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
                 "specular_strength": settings.specular_strength,
                 "noise": settings.noise,
                 "saturate": settings.saturate,
+                "pigmentation": None if settings.pigmentation is None else asdict(settings.pigmentation),
             },
             "wrinkle_measures": [geometric_measures(w) for w in surface.spec.wrinkles],
             "wrinkles_png": "0 = no wrinkle, i = wrinkle i (1-based, order of surface.wrinkles), half-depth region",
-            "diagnostics": info or {},
+            "chromophores": ("melanin.npy, haemoglobin.npy, baseline.npy: optical densities at 523 nm (skintopo.chromophores)"
+                             if "chromophores" in (info or {}) else None),
+            "diagnostics": {key: value for key, value in (info or {}).items() if key != "chromophores"},
         }
         (truth / "surface.json").write_text(json.dumps(description, indent=2, default=float) + "\n", encoding="utf-8")
         if not manifest:

@@ -26,6 +26,14 @@ Specular (Torrance-Sparrow with Beckmann facets and Fresnel)
     band (``default-v1``: m = 0.35, eta 1.37 / 1.38 / 1.39). Relative to the diffuse part it
     weighs most where the albedo is lowest (blue), biasing those normals.
 
+Pigmentation (optional, ``RenderSettings.pigmentation``)
+    the albedo maps are made from melanin and haemoglobin maps through the model of
+    :mod:`skintopo.chromophores`, R_b = 10^-(M m_b + H h_b + B), with (M, H, B) of the skin
+    type's albedo as the mean and smooth variations plus pigmented spots (lentigines) and a
+    reddened patch (erythema) on top; the maps are the ground truth of the melanin and
+    haemoglobin indices. Without it the albedo is the profile's, times a mild variation
+    common to all bands (the default: earlier renders stay reproducible).
+
 Sensor
     auto-exposure per band, shot noise (full well 20 000 e-), read noise (3 e-), both scaled
     by ``noise``; optional saturation (clipping); 16-bit quantisation when written.
@@ -37,7 +45,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.ndimage
+import scipy.special
 
+from skintopo.chromophores import RGB, chromophore_indices, forward_reflectance
 from skintopo.optics import DEFAULT_V1, SkinOptics
 from skintopo.transport import cast_shadow, interreflection_operator
 
@@ -166,6 +176,23 @@ class NearLighting:
 
 
 @dataclass(frozen=True)
+class Pigmentation:
+    """Melanin and haemoglobin maps behind the albedo (module notes). Relative variations
+    are RMS values of a smooth Gaussian random field of correlation length ``scale_um``;
+    each spot multiplies the melanin index by 1 + ``spot_strength`` inside a disc (smooth
+    edge), the erythema patch the haemoglobin index by 1 + ``erythema_strength``."""
+
+    melanin_variation: float = 0.15
+    haemoglobin_variation: float = 0.2
+    scale_um: float = 600.0
+    spots: int = 3
+    spot_strength: float = 1.0
+    spot_radius_um: tuple = (250.0, 700.0)
+    erythema_strength: float = 0.8
+    erythema_radius_um: float = 1200.0
+
+
+@dataclass(frozen=True)
 class RenderSettings:
     """Rendering options. Lengths in micrometres."""
 
@@ -179,6 +206,7 @@ class RenderSettings:
     specular_roughness: float | None = None  # Beckmann m; None: the profile's (skin 0.3-0.45, field notes)
     noise: float = 1.0
     saturate: bool = False
+    pigmentation: Pigmentation | None = None  # albedo from melanin and haemoglobin maps (module notes)
 
 
 def with_interreflection_radius(settings: RenderSettings, wrinkles):
@@ -190,12 +218,43 @@ def with_interreflection_radius(settings: RenderSettings, wrinkles):
     return replace(settings, interreflection_radius_um=max(400.0, widest))
 
 
+def _smooth_field(shape, sigma_px, rng):
+    """A zero-mean, unit-RMS Gaussian random field of correlation length ``sigma_px``."""
+    pattern = scipy.ndimage.gaussian_filter(rng.standard_normal(shape), sigma=max(1.0, sigma_px), mode="wrap")
+    return pattern / (pattern.std() if pattern.std() > 0 else 1)
+
+
+def _discs(shape, pixel, count, radius_range, rng):
+    """Sum of ``count`` discs at random places, 1 inside with a smooth edge (a logistic over
+    2 pixels), radii uniform in ``radius_range`` (um)."""
+    rows, columns = np.mgrid[0 : shape[0], 0 : shape[1]]
+    total = np.zeros(shape)
+    for _ in range(count):
+        radius = rng.uniform(*radius_range) / pixel
+        centre = rng.uniform(radius, np.array(shape) - radius)
+        distance = np.hypot(rows - centre[0], columns - centre[1])
+        total += scipy.special.expit((radius - distance) / 0.5)
+    return total
+
+
+def pigmentation_maps(shape, pixel, base_albedo, pigmentation: Pigmentation, rng):
+    """(melanin, haemoglobin, baseline) maps (optical densities at 523 nm) whose mean
+    (before spots) reproduces ``base_albedo`` (dict band -> value) through the model of
+    :mod:`skintopo.chromophores`."""
+    melanin0, haemoglobin0, baseline0 = chromophore_indices({b: np.array(base_albedo[b]) for b in RGB})
+    sigma = pigmentation.scale_um / pixel
+    melanin = melanin0 * (1 + pigmentation.melanin_variation * np.clip(_smooth_field(shape, sigma, rng), -3, 3))
+    melanin *= 1 + pigmentation.spot_strength * np.minimum(_discs(shape, pixel, pigmentation.spots, pigmentation.spot_radius_um, rng), 1)
+    haemoglobin = haemoglobin0 * (1 + pigmentation.haemoglobin_variation * np.clip(_smooth_field(shape, sigma, rng), -3, 3))
+    radius = pigmentation.erythema_radius_um
+    haemoglobin *= 1 + pigmentation.erythema_strength * _discs(shape, pixel, 1, (radius, radius), rng)
+    return melanin, haemoglobin, np.full(shape, float(baseline0))
+
+
 def _albedo_maps(shape, pixel, base, vary, rng):
     if not vary:
         return {band: np.full(shape, value) for band, value in base.items()}
-    pattern = scipy.ndimage.gaussian_filter(rng.standard_normal(shape), sigma=max(1.0, 200.0 / pixel), mode="wrap")
-    pattern /= pattern.std() if pattern.std() > 0 else 1
-    variation = 1 + ALBEDO_VARIATION * np.clip(pattern, -3, 3)
+    variation = 1 + ALBEDO_VARIATION * np.clip(_smooth_field(shape, 200.0 / pixel, rng), -3, 3)
     return {band: value * variation for band, value in base.items()}
 
 
@@ -213,10 +272,16 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     pixel = height.spacing[1]
     effects = settings.effects
     optics = settings.optics
-    albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
+    if settings.pigmentation is None:
+        albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
+    else:
+        melanin, haemoglobin, baseline = pigmentation_maps(z.shape, pixel, optics.albedo[settings.skin], settings.pigmentation, rng)
+        albedo = forward_reflectance(melanin, haemoglobin, baseline)
     roughness = optics.specular_roughness if settings.specular_roughness is None else settings.specular_roughness
     operator = None
     info = {"interreflection_nonzeros": 0, "iterations": {}}
+    if settings.pigmentation is not None:  # the ground truth of the chromophore maps
+        info["chromophores"] = {"melanin": melanin, "haemoglobin": haemoglobin, "baseline": baseline}
     if effects.interreflection:
         operator = interreflection_operator(z, normals, pixel, radius_um=settings.interreflection_radius_um, n_azimuth=settings.n_azimuth)
         info["interreflection_nonzeros"] = int(operator.nnz)

@@ -25,6 +25,10 @@ Components (sources for the numbers: ``../shared/reference/field-notes.md``, "Sk
   each end. Wrinkle depths are 50-300 um, widths 0.2-1.7 mm, lengths 5-30 mm in the field
   notes. :func:`geometric_measures` gives each wrinkle's measures by the definitions of
   ``docs/wrinkle-measures.md``, exactly, from this geometry.
+* **Pores** -- bowls of opening radius r and depth d: z = -d (1 - (rho / r)^2) for rho < r
+  (a paraboloid with a sharp rim; rho the distance to the pore's centre), slopes exact.
+  :func:`place_pores` puts them on the skin's plateaus, away from furrows, wrinkles and each
+  other (pores of 0.05-0.5 mm openings, issue 26).
 * **Form** -- the gentle curvature of a forehead: a cylinder of radius ``form_radius_mm``
   bending about the vertical axis, z = -x^2 / (2 R).
 
@@ -34,7 +38,7 @@ least half of its local maximum (the half-depth region, where width is measured)
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -67,6 +71,17 @@ class Wrinkle:
 
 
 @dataclass(frozen=True)
+class Pore:
+    """One pore: centre (x, y) in micrometres from the field centre (x right, y up; on the
+    skin, as wrinkle centres: a ``shift_um`` moves the field, not the pore), opening radius
+    and depth in micrometres."""
+
+    centre_um: tuple
+    radius_um: float
+    depth_um: float
+
+
+@dataclass(frozen=True)
 class SurfaceSpec:
     """Everything that defines a synthetic surface. Lengths in micrometres."""
 
@@ -83,6 +98,7 @@ class SurfaceSpec:
     form_shape: str = "cylinder"  # "cylinder": -x^2 / 2R (forehead, across); "sphere": exact sphere of radius R
     microrelief: bool = True
     shift_um: tuple = (0.0, 0.0)  # (x, y): the field sees the same skin displaced by this (a later visit)
+    pores: tuple = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,6 +118,8 @@ class SkinSurface:
     wrinkle_depth : ndarray
         Depth contribution of the wrinkles alone (micrometres, >= 0), for evaluation.
     spec : SurfaceSpec
+    pore_labels : ndarray of int
+        0 outside pores, i + 1 inside the opening of pore i (of ``spec.pores``).
     """
 
     height: HeightMap
@@ -111,6 +129,7 @@ class SkinSurface:
     wrinkle_labels: np.ndarray
     wrinkle_depth: np.ndarray
     spec: SurfaceSpec = field(repr=False)
+    pore_labels: np.ndarray | None = field(default=None, repr=False)
 
     def describe(self):
         """The spec as plain data (for ground_truth/surface.json)."""
@@ -287,6 +306,51 @@ def wrinkle_relief(x, y, wrinkle: Wrinkle):
     return z, p, q, envelope * profile
 
 
+def pore_relief(x, y, pore: Pore):
+    """(z, p, q, inside) of one pore (module notes), micrometres."""
+    dx, dy = x - pore.centre_um[0], y - pore.centre_um[1]
+    inside = dx * dx + dy * dy < pore.radius_um**2
+    scale = pore.depth_um / pore.radius_um**2
+    z = np.where(inside, -pore.depth_um + scale * (dx * dx + dy * dy), 0.0)
+    return z, np.where(inside, 2 * scale * dx, 0.0), np.where(inside, 2 * scale * dy, 0.0), inside
+
+
+def place_pores(spec: SurfaceSpec, seed, count, *, radius_um=(25.0, 250.0), depth_um=(20.0, 120.0), rng_seed=None) -> SurfaceSpec:
+    """``spec`` with ``count`` pores placed at random on the plateaus of the surface it makes
+    with ``seed``: radius and depth log-uniform in their ranges, each pore's disc (and a ring
+    of half its radius, at least 2 pixels, around it) clear of wrinkles (their relief below
+    1 um), of furrows (the surface within 3 um of its 0.6 mm line-segment closing, a plateau)
+    and of the other pores. The base surface is the same as without pores (they are added
+    last). Raises SkinTopoError when the field has no room for that many."""
+    from skintopo.filters import line_segment_closings
+
+    base = make_surface(spec, seed=seed)
+    rng = np.random.default_rng(seed if rng_seed is None else rng_seed)
+    pixel = spec.pixel_um
+    closed = np.max(line_segment_closings(base.height.z, base.height.spacing, 600.0, (0, 45, 90, 135)), axis=0)
+    free = ((closed - base.height.z) < 3.0) & (base.wrinkle_depth < 1.0)
+    x, y = _coordinates(base.height.shape, pixel, spec.shift_um)
+    pores = []
+    for _ in range(50 * count):
+        if len(pores) == count:
+            break
+        radius = float(np.exp(rng.uniform(*np.log(radius_um))))
+        depth = float(np.exp(rng.uniform(*np.log(depth_um))))
+        reach = radius + max(0.25 * radius, 2 * pixel)
+        half = np.array(base.height.shape) * pixel / 2 - reach
+        if np.any(half <= 0):
+            continue
+        centre = (float(rng.uniform(-half[1], half[1]) + spec.shift_um[0]), float(rng.uniform(-half[0], half[0]) + spec.shift_um[1]))
+        if any(np.hypot(centre[0] - p.centre_um[0], centre[1] - p.centre_um[1]) < reach + p.radius_um * 1.25 for p in pores):
+            continue
+        disc = (x - centre[0]) ** 2 + (y - centre[1]) ** 2 < reach**2
+        if free[disc].all():
+            pores.append(Pore(centre, radius, depth))
+    if len(pores) < count:
+        raise SkinTopoError(f"room for only {len(pores)} of {count} pores on the plateaus of this field")
+    return replace(spec, pores=tuple(pores))
+
+
 def validate_spec(spec: SurfaceSpec):
     """Raise SkinTopoError listing what is wrong with ``spec``."""
     problems = []
@@ -317,6 +381,9 @@ def validate_spec(spec: SurfaceSpec):
             problems.append("plate size and furrow width must be positive")
         if spec.roughness_rms_um < 0 or not 0 < spec.hurst < 1:
             problems.append(f"roughness RMS must be >= 0 and the Hurst exponent in (0, 1), got {spec.roughness_rms_um}, {spec.hurst}")
+    for i, pore in enumerate(spec.pores):
+        if not (pore.radius_um > 0 and pore.depth_um > 0):
+            problems.append(f"pore {i}: radius and depth must be positive, got {pore.radius_um}, {pore.depth_um} um")
     if spec.form_radius_mm is not None and spec.form_radius_mm <= 0:
         problems.append(f"form radius must be positive, got {spec.form_radius_mm} mm")
     if spec.form_shape not in ("cylinder", "sphere"):
@@ -359,6 +426,13 @@ def make_surface(spec: SurfaceSpec, seed=0) -> SkinSurface:
         take = (fraction >= 0.5) & (fraction > best_fraction)
         labels[take] = index + 1
         best_fraction = np.maximum(best_fraction, fraction)
+    pore_labels = np.zeros(shape, dtype=np.int32)
+    for index, pore in enumerate(spec.pores):
+        pz, pp, pq, inside = pore_relief(x, y, pore)
+        z += pz
+        p += pp
+        q += pq
+        pore_labels[inside] = index + 1
     if spec.form_radius_mm is not None and spec.form_shape == "sphere":
         radius = spec.form_radius_mm * 1000.0
         cap = np.sqrt(radius**2 - x**2 - y**2)
@@ -371,7 +445,7 @@ def make_surface(spec: SurfaceSpec, seed=0) -> SkinSurface:
         p += -x / radius
     normals = np.stack([-p, -q, np.ones(shape)], axis=-1)
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-    return SkinSurface(HeightMap(z, spec.pixel_um), p, q, normals, labels, wrinkle_depth, spec)
+    return SkinSurface(HeightMap(z, spec.pixel_um), p, q, normals, labels, wrinkle_depth, spec, pore_labels)
 
 
 def random_wrinkle_spec(rng, *, size_px=384, pixel_um=20.0, microrelief=True, crossing=False) -> SurfaceSpec:
