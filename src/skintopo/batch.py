@@ -169,7 +169,7 @@ def run_task(kind, inputs, out, stamp, options):
         if kind == "measure":
             result = measure_acquisition(inputs[0], options)
         elif kind == "compare":
-            result = compare_results(*inputs, segmentation=options.segmentation, wrinkles=options.wrinkles)
+            result = compare_results(*inputs, segmentation=options.segmentation, wrinkles=options.wrinkles, pores=options.pores)
         else:
             raise ValueError(f"unknown kind of item {kind!r} (measure or compare)")
         with staged_output_folder(out, overwrite=True) as staging:

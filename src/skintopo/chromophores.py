@@ -53,6 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from skintopo.defaults import DEFAULT_COLOUR_SMOOTHING_UM
 from skintopo.errors import SkinTopoError
 
 LED_WAVELENGTHS_NM = {"red": 625.0, "green": 523.0, "blue": 462.0}
@@ -68,8 +69,6 @@ PRAHL_HAEMOGLOBIN = {
     624: (774.0, 5906.8), 626: (707.6, 5620.0),
 }
 OUT_OF_RANGE_LIMIT = 0.01  # more than this fraction of the valid pixels outside (0, 1] in a band: refused
-DEFAULT_SMOOTHING_UM = 30.0  # sigma of the Gaussian the optical densities are smoothed with before the inversion
-SATURATED_REFERENCE_LIMIT = 0.01  # more than this fraction of a white reference's observations saturated: refused
 
 
 def haemoglobin_extinction(wavelength_nm, saturation=OXYGEN_SATURATION):
@@ -205,7 +204,7 @@ def _smoothed(values, sigma_px):
         return np.where(valid, total / weight, np.nan)
 
 
-def chromophore_maps(albedo, *, pixel_um=None, smoothing_um=DEFAULT_SMOOTHING_UM, reference_albedo=None, reference_reflectance=None,
+def chromophore_maps(albedo, *, pixel_um=None, smoothing_um=DEFAULT_COLOUR_SMOOTHING_UM, reference_albedo=None, reference_reflectance=None,
                      source="the acquisition"):
     """:class:`ChromophoreMaps` from per-band albedo maps (dict band -> array, red, green,
     blue).
@@ -253,3 +252,26 @@ def chromophore_maps(albedo, *, pixel_um=None, smoothing_um=DEFAULT_SMOOTHING_UM
     return ChromophoreMaps(melanin.astype(np.float32), haemoglobin.astype(np.float32), baseline.astype(np.float32),
                            "absolute" if reference_albedo is not None else "relative", scale, out_of_range,
                            smoothing_um if (smoothing_um and pixel_um) else 0.0)
+
+
+def reference_albedo(acquisition, *, shadow_fraction=None):
+    """Each band's median albedo over the acquisition's white reference box
+    (:class:`~skintopo.acquisition.WhiteReference`), by photometric stereo of the box alone
+    (the target is outside the skin mask). A :class:`SkinTopoError` when the box gives no
+    valid albedo in a band."""
+    from skintopo.defaults import DEFAULT_SHADOW_FRACTION
+    from skintopo.normals import photometric_stereo
+
+    reference = acquisition.white_reference
+    rows, columns = reference.slices
+    values = {}
+    for band in RGB:
+        images = acquisition.bands[band]
+        stereo = photometric_stereo(images.images[:, rows, columns], images.lights,
+                                    shadow_fraction=DEFAULT_SHADOW_FRACTION if shadow_fraction is None else shadow_fraction)
+        albedo = stereo.albedo[np.isfinite(stereo.albedo)]
+        if albedo.size == 0 or not np.median(albedo) > 0:
+            raise SkinTopoError(f"{acquisition.source}: the white reference box {list(reference.box_px)} gives no valid albedo in the "
+                                f"{band} band (is the target in the box and lit by every light?)")
+        values[band] = float(np.median(albedo))
+    return values

@@ -17,7 +17,7 @@ limit, with Student's t for the few degrees of freedom; see there).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -65,16 +65,21 @@ class Comparison:
     follow_up_wrinkles: object
     aligned_albedo: np.ndarray | None = None  # follow-up albedo on the baseline grid (NaN outside)
     albedo_residual_px: float | None = None  # residual misalignment of the albedo images (pixels RMS)
+    pores: dict = field(default_factory=dict)  # pore totals -> change record
+    colour: dict = field(default_factory=dict)  # "melanin.mean", ... -> change record, over the common overlap
 
 
 def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=False, segmentation_options=None, wrinkle_options=None,
-                   baseline_albedo=None, follow_up_albedo=None) -> Comparison:
+                   baseline_albedo=None, follow_up_albedo=None, pore_options=None, baseline_colour=None, follow_up_colour=None) -> Comparison:
     """Register ``follow_up`` onto ``baseline`` and report every change (see the module notes).
 
-    Texture parameters are computed on the common overlap of both visits; wrinkles are
-    segmented in each visit independently and matched by overlap after registration. When
+    Texture parameters and pores are computed on the common overlap of both visits; wrinkles
+    are segmented in each visit independently and matched by overlap after registration. When
     both albedo images are given, the follow-up's is resampled with the same transform and
-    its residual misalignment against the baseline's is measured as for the heights.
+    its residual misalignment against the baseline's is measured as for the heights. When
+    both visits' colour maps are given (``{"melanin": map, "haemoglobin": map}`` on each
+    visit's grid), the follow-up's are resampled the same way and each map's mean, standard
+    deviation and relative variation compared over the pixels both visits have.
     """
     from skintopo.evaluation import height_difference
     from skintopo.segmentation import segment_wrinkles
@@ -108,6 +113,21 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
     # is reported per visit, not as a change)
     totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals
               if not name.endswith("_deg")}
+    from skintopo.chromophores import region_statistics
+    from skintopo.pores import measure_pores
+
+    pores_before, pores_after = (measure_pores(visit, **(pore_options or {})).totals for visit in (before, after))
+    pores = {name: _change(pores_before[name], pores_after[name]) for name in pores_before}
+    colour = {}
+    for name in sorted(set(baseline_colour or {}) & set(follow_up_colour or {})):
+        if np.shape(baseline_colour[name]) != baseline.shape or np.shape(follow_up_colour[name]) != follow_up.shape:
+            raise SkinTopoError(f"the {name} maps ({np.shape(baseline_colour[name])}, {np.shape(follow_up_colour[name])}) do not match "
+                                f"their height maps ({baseline.shape}, {follow_up.shape})")
+        fixed, moved = np.asarray(baseline_colour[name], float), apply_registration(follow_up_colour[name], registration)
+        both = common & np.isfinite(fixed) & np.isfinite(moved)
+        statistics = (region_statistics(fixed, both), region_statistics(moved, both))
+        for statistic in ("mean", "standard_deviation", "relative_variation"):
+            colour[f"{name}.{statistic}"] = _change(*(float("nan") if s[statistic] is None else s[statistic] for s in statistics))
     aligned_albedo = albedo_residual = None
     if baseline_albedo is not None and follow_up_albedo is not None:
         for name, image in (("baseline", baseline_albedo), ("follow-up", follow_up_albedo)):
@@ -116,7 +136,8 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
         aligned_albedo = apply_registration(follow_up_albedo, registration)
         fixed = np.nan_to_num(np.asarray(baseline_albedo, dtype=float), nan=float(np.nanmean(baseline_albedo)))
         albedo_residual = residual_misalignment(fixed, np.where(np.isfinite(aligned_albedo), aligned_albedo, fixed))
-    return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after, aligned_albedo, albedo_residual)
+    return Comparison(registration, difference, texture, per_wrinkle, totals, wrinkles_before, wrinkles_after, aligned_albedo, albedo_residual,
+                      pores, colour)
 
 
 @dataclass(frozen=True)
@@ -149,7 +170,7 @@ def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> Det
     account of s_r being estimated from few differences (one repeat pair: t_(0.995, 1) = 63.7,
     so a single repeat gives wide limits, and a warning).
 
-    Texture parameters and wrinkle totals: absolute differences, nu = k. Per-wrinkle measures:
+    Texture parameters, wrinkle and pore totals, colour statistics: absolute differences, nu = k. Per-wrinkle measures:
     relative differences pooled over every wrinkle matched in every repeat (nu = their
     number), the limit of each wrinkle L x its baseline value, on the assumption that the
     repeatability of a wrinkle measure is proportional to it.
@@ -168,7 +189,7 @@ def detection_limits(repeats, *, confidence=DEFAULT_DETECTION_CONFIDENCE) -> Det
         return factor(e.size) * float(np.sqrt(np.sum(e**2) / (2 * e.size)))
 
     limits, dof = {}, {}
-    for group, prefix in (("texture", ""), ("totals", "wrinkles.")):
+    for group, prefix in (("texture", ""), ("totals", "wrinkles."), ("pores", "pores."), ("colour", "")):
         for name in getattr(repeats[0], group):
             e = np.array([getattr(r, group)[name]["change"] for r in repeats], float)
             e = e[np.isfinite(e)]

@@ -38,6 +38,13 @@ DEFAULT_ALONG_CLOSING_UM = 1000.0  # wrinkles: closing segment along a wrinkle t
 DEFAULT_DEPTH_WINDOW_UM = 1000.0  # wrinkles: max depth = the deepest stretch of centre line this long
 DEFAULT_DEPTH_SHORT_CUTOFF_UM = 0.0  # wrinkles: S-filter of the depth (0 = none: it fills narrow floors)
 
+DEFAULT_COLOUR_SMOOTHING_UM = 30.0  # chromophores: sigma of the Gaussian on the optical densities before the inversion
+
+DEFAULT_PORE_MAX_OPENING_UM = 500.0  # pores: largest opening (the closing segment is 1.2 times this)
+DEFAULT_PORE_MIN_OPENING_UM = 40.0  # pores: smallest opening (equivalent diameter at the edge level)
+DEFAULT_PORE_MIN_DEPTH_UM = 10.0  # pores: a pore holds a point this deep below its rim
+DEFAULT_PORE_EDGE_UM = 1.0  # pores: the opening is where the pit is deeper than this
+
 DEFAULT_LEVEL_ORDER = 1  # texture: least-squares plane removed first
 DEFAULT_P = 10.0  # texture: % (ISO 25178-2 default for Vmp, Vmc, Vvc)
 DEFAULT_Q = 80.0  # %

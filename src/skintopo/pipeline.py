@@ -1,8 +1,8 @@
 """The measurement as one pipeline, with its options kept beside its result.
 
 acquisition -> normals per band -> height (a band, the spectral correction or the physically
-based height) -> texture,
-fractal and wrinkle measures. The command line, the batch, the demo and a notebook all call
+based height) -> texture, fractal, wrinkle and pore measures; beside the height, melanin and
+haemoglobin maps from the bands' albedo. The command line, the batch, the demo and a notebook all call
 these functions; each stage also stays usable alone.
 
 Options are frozen dataclasses holding the library's defaults, so a result records exactly
@@ -23,14 +23,28 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.acquisition import DEFAULT_SATURATION, load_acquisition
+from skintopo.chromophores import RGB, ChromophoreMaps, chromophore_maps, reference_albedo
 from skintopo.correction import REQUIRED_BANDS, CorrectionResult, spectral_correction
-from skintopo.defaults import AUTO_HEIGHT, CORRECTION_METHODS, DEFAULT_DETECTION_CONFIDENCE, DEFAULT_LEVEL_ORDER, HEIGHT_METHODS, PHYSICS
+from skintopo.defaults import (
+    AUTO_HEIGHT,
+    CORRECTION_METHODS,
+    DEFAULT_COLOUR_SMOOTHING_UM,
+    DEFAULT_DETECTION_CONFIDENCE,
+    DEFAULT_LEVEL_ORDER,
+    DEFAULT_PORE_EDGE_UM,
+    DEFAULT_PORE_MAX_OPENING_UM,
+    DEFAULT_PORE_MIN_DEPTH_UM,
+    DEFAULT_PORE_MIN_OPENING_UM,
+    HEIGHT_METHODS,
+    PHYSICS,
+)
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
 from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
 from skintopo.optics import optics_profile
 from skintopo.physics import PhysicsResult, physics_height
+from skintopo.pores import PoreMeasures, measure_pores
 from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, rgb_share_lights, specular_separation
 from skintopo.segmentation import (
     DEFAULT_CUTOFF_UM,
@@ -125,6 +139,31 @@ class WrinkleOptions:
 
 
 @dataclass(frozen=True)
+class PoreOptions:
+    """Pore settings (:func:`skintopo.pores.measure_pores`), micrometres."""
+
+    max_opening_um: float = DEFAULT_PORE_MAX_OPENING_UM
+    min_opening_um: float = DEFAULT_PORE_MIN_OPENING_UM
+    min_depth_um: float = DEFAULT_PORE_MIN_DEPTH_UM
+    edge_um: float = DEFAULT_PORE_EDGE_UM
+
+    def __post_init__(self):
+        if not (0 < self.min_opening_um < self.max_opening_um and self.min_depth_um > self.edge_um > 0):
+            raise SkinTopoError(f"pore settings need 0 < min opening < max opening and 0 < edge < min depth, got {asdict(self)}")
+
+    def as_kwargs(self):
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class ColourOptions:
+    """Melanin and haemoglobin maps (:func:`skintopo.chromophores.chromophore_maps`): the
+    Gaussian (sigma, um) the optical densities are smoothed with."""
+
+    smoothing_um: float = DEFAULT_COLOUR_SMOOTHING_UM
+
+
+@dataclass(frozen=True)
 class TextureOptions:
     """Surface texture settings (:func:`skintopo.texture.measure_texture`): the order of the
     least-squares form removed first and the material ratios p, q (%) of the volume parameters."""
@@ -154,6 +193,8 @@ class MeasureOptions:
     texture: TextureOptions = field(default_factory=TextureOptions)
     regions: tuple = ()
     wrinkles: WrinkleOptions = field(default_factory=WrinkleOptions)
+    pores: PoreOptions = field(default_factory=PoreOptions)
+    colour: ColourOptions = field(default_factory=ColourOptions)
 
     def as_dict(self):
         """Plain JSON-ready dict (the form stored in results and study fingerprints)."""
@@ -165,7 +206,7 @@ class MeasureOptions:
     def from_dict(cls, data):
         """Inverse of :meth:`as_dict`."""
         kinds = {"reconstruction": ReconstructionOptions, "height": HeightOptions, "segmentation": SegmentationOptions,
-                 "texture": TextureOptions, "wrinkles": WrinkleOptions}
+                 "texture": TextureOptions, "wrinkles": WrinkleOptions, "pores": PoreOptions, "colour": ColourOptions}
         unknown = set(data) - {f.name for f in fields(cls)}
         if unknown:
             raise SkinTopoError(f"unknown measure options {sorted(unknown)}")
@@ -174,9 +215,10 @@ class MeasureOptions:
         return cls(**values)
 
 
-def crop_region(height: HeightMap, box, name):
-    """The part of ``height`` inside ``box = (x0, y0, x1, y1)`` micrometres, measured as pixel
-    edges from the map's top-left corner (the map spans columns x spacing by rows x spacing)."""
+def region_slices(height: HeightMap, box, name):
+    """(rows, columns) slices of ``box = (x0, y0, x1, y1)`` micrometres, measured as pixel
+    edges from the map's top-left corner (the map spans columns x spacing by rows x spacing);
+    a :class:`SkinTopoError` when it lies outside the map or is under 2 x 2 pixels."""
     dy, dx = height.spacing
     x0, y0, x1, y1 = box
     c0, c1 = int(round(x0 / dx)), int(round(x1 / dx))
@@ -186,7 +228,13 @@ def crop_region(height: HeightMap, box, name):
         raise SkinTopoError(f"region {name!r} ({box} um) lies outside the map ({columns * dx:g} x {rows * dy:g} um)")
     if c1 - c0 < 2 or r1 - r0 < 2:
         raise SkinTopoError(f"region {name!r} ({box} um) is smaller than 2 x 2 pixels of {dx:g} x {dy:g} um")
-    return HeightMap(height.z[r0:r1, c0:c1], height.spacing, height.mask[r0:r1, c0:c1])
+    return slice(r0, r1), slice(c0, c1)
+
+
+def crop_region(height: HeightMap, box, name):
+    """The part of ``height`` inside ``box`` (:func:`region_slices`)."""
+    window = region_slices(height, box, name)
+    return HeightMap(height.z[window], height.spacing, height.mask[window])
 
 
 # Memory each command needs per pixel beyond the acquisition's float32 images (bytes), for
@@ -295,7 +343,9 @@ class Measurement:
 
     ``texture`` maps a region name (``"field"`` first) to its list of
     :class:`skintopo.texture.Parameter`; ``fractal_results`` holds the whole field's
-    estimators with their log-log points.
+    estimators with their log-log points. ``chromophores``: melanin and haemoglobin maps
+    (from an acquisition with red, green and blue albedo; else None, and
+    ``source["chromophores"]`` says why).
     """
 
     height: HeightMap
@@ -306,6 +356,16 @@ class Measurement:
     fractal_results: tuple
     segmentation: WrinkleSegmentation
     wrinkles: WrinkleMeasures
+    pores: PoreMeasures | None = None
+    chromophores: ChromophoreMaps | None = None
+
+    def region_masks(self):
+        """{name: boolean mask on the height's grid} of ``options.regions`` (the field is all)."""
+        masks = {}
+        for name, box in self.options.regions:
+            masks[name] = np.zeros(self.height.shape, bool)
+            masks[name][region_slices(self.height, box, name)] = True
+        return masks
 
     def parameter_rows(self):
         """One dict per (region, parameter): region, name, value (None for NaN), unit, reference."""
@@ -316,9 +376,11 @@ class Measurement:
         ]
 
 
-def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None, progress=iter) -> Measurement:
-    """Texture and fractal parameters (whole field and each region) and wrinkle measures of
-    ``height``. ``progress`` wraps the iteration over the steps (each a name; e.g. a tqdm bar)."""
+def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None, progress=iter,
+                   chromophores=None) -> Measurement:
+    """Texture and fractal parameters (whole field and each region), wrinkle and pore
+    measures of ``height``; ``chromophores`` (melanin and haemoglobin maps) are kept with
+    them. ``progress`` wraps the iteration over the steps (each a name; e.g. a tqdm bar)."""
     regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
     texture_options = {"level_order": options.texture.level_order, "p": options.texture.p, "q": options.texture.q}
     texture, fractal_results = {}, ()
@@ -328,17 +390,37 @@ def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions()
     with ThreadPoolExecutor(max_workers=1) as pool:
         segmenting = pool.submit(segment_wrinkles, height, **options.segmentation.as_kwargs())
         measuring = pool.submit(lambda: measure_wrinkles(height, segmenting.result(), **options.wrinkles.as_kwargs()))
-        for step in progress([*(f"texture: {name}" for name in regions), "wrinkle segmentation", "wrinkle measures"]):
+        for step in progress([*(f"texture: {name}" for name in regions), "pores", "wrinkle segmentation", "wrinkle measures"]):
             if step == "texture: field":  # its estimators' log-log points go to the report's plot
                 texture["field"], fractal_results = measure_texture(height, **texture_options, return_fractal=True)
             elif step.startswith("texture: "):
                 name = step.removeprefix("texture: ")
                 texture[name] = measure_texture(regions[name], **texture_options)
+            elif step == "pores":  # here while the worker still segments: the wall time does not grow
+                pores = measure_pores(height, **options.pores.as_kwargs())
             elif step == "wrinkle segmentation":
                 segmentation = segmenting.result()
             else:
                 wrinkles = measuring.result()
-    return Measurement(height, albedo, dict(source or {}), options, texture, fractal_results, segmentation, wrinkles)
+    return Measurement(height, albedo, dict(source or {}), options, texture, fractal_results, segmentation, wrinkles, pores, chromophores)
+
+
+def acquisition_chromophores(acquisition, bands, options: MeasureOptions = MeasureOptions()):
+    """(:class:`~skintopo.chromophores.ChromophoreMaps` or None, note): the melanin and
+    haemoglobin maps from the red, green and blue albedo of ``bands`` (band ->
+    BandReconstruction, on the height's grid), absolute when the acquisition has a white
+    reference; None with the reason when a band is missing."""
+    missing = [b for b in RGB if b not in bands]
+    if missing:
+        return None, f"not measured: the height was made without the {', '.join(missing)} band(s)"
+    reference = None
+    if acquisition.white_reference is not None:
+        reference = reference_albedo(acquisition, shadow_fraction=options.reconstruction.shadow_fraction)
+    maps = chromophore_maps({b: bands[b].stereo.albedo for b in RGB}, pixel_um=acquisition.pixel_um, smoothing_um=options.colour.smoothing_um,
+                            reference_albedo=reference,
+                            reference_reflectance=None if reference is None else acquisition.white_reference.reflectance,
+                            source=str(acquisition.source))
+    return maps, f"melanin and haemoglobin indices ({maps.reflectance} reflectance)"
 
 
 def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None, step_progress=iter) -> Measurement:
@@ -359,11 +441,12 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
         note = made.physics.convergence_note()
         if note and on_note is not None:
             on_note(note)
+    chromophores, source["chromophores"] = acquisition_chromophores(acquisition, made.bands, options)
     height, albedo = made.height, made.albedo
     # the images and the bands' normals and albedos (about 170 bytes a pixel with 16 images)
     # are not needed to measure the height: let them go first
     del acquisition, made
-    return measure_height(height, options, albedo=albedo, source=source, progress=step_progress)
+    return measure_height(height, options, albedo=albedo, source=source, progress=step_progress, chromophores=chromophores)
 
 
 def acquisition_summary(acquisition):
@@ -403,16 +486,17 @@ class CompareResult:
 
 def compare_results(baseline, follow_up, *, repeat=(), pixel_um=None, allow_scale=False, confidence=DEFAULT_DETECTION_CONFIDENCE,
                     segmentation: SegmentationOptions = SegmentationOptions(),
-                    wrinkles: WrinkleOptions = WrinkleOptions(), progress=iter) -> CompareResult:
+                    wrinkles: WrinkleOptions = WrinkleOptions(), pores: PoreOptions = PoreOptions(), progress=iter) -> CompareResult:
     """Compare two visits given as height files or result folders (see :mod:`skintopo.compare`).
 
     ``repeat``: repeat captures of the unchanged baseline skin (one path or several), each
     compared with the baseline as the follow-up is, give detection limits
     (:func:`skintopo.compare.detection_limits` at ``confidence``). The albedo of result
-    folders is carried by the same registration. ``progress`` wraps the iteration over the
+    folders is carried by the same registration, and so are their melanin and haemoglobin
+    maps (compared over the overlap). ``progress`` wraps the iteration over the
     comparisons (named "follow-up", "repeat 1", ...)."""
     from skintopo.compare import compare_visits, detection_limits
-    from skintopo.results import comparison_rows, load_albedo_beside, load_height_input, run_header
+    from skintopo.results import comparison_rows, load_albedo_beside, load_colour_beside, load_height_input, run_header
 
     before = load_height_input(baseline, pixel_um)
     options, wrinkle_options = segmentation.as_kwargs(), wrinkles.as_kwargs()
@@ -420,7 +504,9 @@ def compare_results(baseline, follow_up, *, repeat=(), pixel_um=None, allow_scal
     others = {"follow-up": follow_up} | {f"repeat {k}": path for k, path in enumerate(repeats, start=1)}
 
     def compared(path, **extra):
-        return compare_visits(before, load_height_input(path, pixel_um), segmentation_options=options, wrinkle_options=wrinkle_options, **extra)
+        return compare_visits(before, load_height_input(path, pixel_um), segmentation_options=options, wrinkle_options=wrinkle_options,
+                              pore_options=pores.as_kwargs(), baseline_colour=load_colour_beside(baseline),
+                              follow_up_colour=load_colour_beside(path), **extra)
 
     comparisons = {}
     for name in progress(list(others)):
@@ -435,7 +521,8 @@ def compare_results(baseline, follow_up, *, repeat=(), pixel_um=None, allow_scal
     summary = run_header("compare", baseline=Path(baseline).name, follow_up=Path(follow_up).name,
                          repeats=[Path(path).name for path in repeats],
                          detection_limits=limits.as_dict() if limits else None,
-                         options={"allow_scale": allow_scale, "segmentation": options, "wrinkles": wrinkle_options},
+                         options={"allow_scale": allow_scale, "segmentation": options, "wrinkles": wrinkle_options,
+                                  "pores": pores.as_kwargs()},
                          registration={"shift_px": list(registration.shift_px), "rotation_deg": registration.rotation_deg,
                                        "scale": registration.scale, "residual_misalignment_px": registration.residual_px,
                                        "albedo_residual_misalignment_px": comparison.albedo_residual_px},

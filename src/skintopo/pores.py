@@ -39,15 +39,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from skintopo.defaults import DEFAULT_PORE_EDGE_UM, DEFAULT_PORE_MAX_OPENING_UM, DEFAULT_PORE_MIN_DEPTH_UM, DEFAULT_PORE_MIN_OPENING_UM
 from skintopo.filters import line_segment_closings, pixel_spacing
 from skintopo.heightmap import HeightMap
 
 PORE_DIRECTIONS_DEG = tuple(range(0, 180, 15))
 SEGMENT_FACTOR = 1.2  # the closing's segment is this times the largest opening
-DEFAULT_MAX_OPENING_UM = 500.0
-DEFAULT_MIN_OPENING_UM = 40.0
-DEFAULT_MIN_DEPTH_UM = 10.0
-DEFAULT_EDGE_UM = 1.0
 DEFAULT_MIN_ROUNDNESS = 0.5
 MAX_VALLEY_RATIO = 2.0  # a pore's valley region (V above VALLEY_LEVEL of its depth) is at most this times its opening
 VALLEY_LEVEL = 0.5
@@ -128,8 +125,8 @@ def _stands_alone(region, valley, level, margin):
     return bool(edge_free and component.sum() <= MAX_VALLEY_RATIO * region.area)
 
 
-def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_MAX_OPENING_UM, min_opening_um=DEFAULT_MIN_OPENING_UM,
-                  min_depth_um=DEFAULT_MIN_DEPTH_UM, edge_um=DEFAULT_EDGE_UM, min_roundness=DEFAULT_MIN_ROUNDNESS) -> PoreMeasures:
+def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_UM, min_opening_um=DEFAULT_PORE_MIN_OPENING_UM,
+                  min_depth_um=DEFAULT_PORE_MIN_DEPTH_UM, edge_um=DEFAULT_PORE_EDGE_UM, min_roundness=DEFAULT_MIN_ROUNDNESS) -> PoreMeasures:
     """Find and measure the pores of ``height`` (micrometres; see the module notes for the
     method and every option)."""
     import skimage.filters

@@ -7,7 +7,7 @@ downsampled for display only (at most ``DISPLAY_PIXELS`` a side for images, ``ME
 for the 3-D view); every number in the tables comes from the full-resolution data.
 Missing points (NaN) are shown as missing (transparent grey), never as zeros.
 
-The maps (height, albedo, wrinkles) are coloured with NumPy and encoded by libpng, their
+The maps (height, albedo, wrinkles, pores, melanin, haemoglobin) are coloured with NumPy and encoded by libpng, their
 extent, colour bar and wrinkle ids written in HTML; the fractal log-log plot is drawn by the
 page's script from its points. matplotlib draws only true figures: the cross-sections
 against a ground truth, the study's charts and the ``wrinkles`` command's picture file.
@@ -132,19 +132,46 @@ def shaded_height_picture(height):
     return _map_picture("shaded height map", rgba, height, bar=(_colour_bar(copper), low, high, "height (um)"))
 
 
-def albedo_picture(albedo, height):
-    """The albedo in grey levels over its finite range, missing points transparent grey."""
-    values, _ = _decimate(np.asarray(albedo, float), DISPLAY_PIXELS)
+def greys(t):
+    """Black to white."""
+    return np.repeat(np.clip(np.asarray(t, float), 0, 1)[..., None], 3, axis=-1)
+
+
+def reds(t):
+    """White to dark red (haemoglobin): linear from (1, 1, 1) to (0.55, 0, 0)."""
+    t = np.clip(np.asarray(t, float), 0, 1)[..., None]
+    return (1 - t) * np.ones(3) + t * np.array([0.55, 0.0, 0.0])
+
+
+def browns(t):
+    """Light beige to dark brown (melanin): linear from (0.98, 0.94, 0.86) to (0.25, 0.12, 0.03)."""
+    t = np.clip(np.asarray(t, float), 0, 1)[..., None]
+    return (1 - t) * np.array([0.98, 0.94, 0.86]) + t * np.array([0.25, 0.12, 0.03])
+
+
+def value_picture(values, height, alt, label, colour_map=greys):
+    """A map of ``values`` (on the height's grid) coloured by ``colour_map`` over its finite
+    range, missing points transparent grey, with its colour bar labelled ``label``."""
+    values, _ = _decimate(np.asarray(values, float), DISPLAY_PIXELS)
     filled, missing = _filled(values)
     low, high = _finite_range(values, missing)
-    grey = _scaled(filled, low, high)
-    rgba = np.concatenate([np.repeat(grey[..., None], 3, axis=-1), np.ones(values.shape + (1,))], axis=-1)
+    rgba = np.concatenate([colour_map(_scaled(filled, low, high)), np.ones(values.shape + (1,))], axis=-1)
     rgba[missing] = MISSING_RGBA
+    return _map_picture(alt, rgba, height, bar=(_colour_bar(colour_map), low, high, label))
 
-    def greys(t):
-        return np.repeat(np.asarray(t)[..., None], 3, axis=-1)
 
-    return _map_picture("albedo", rgba, height, bar=(_colour_bar(greys), low, high, "albedo (relative)"))
+def albedo_picture(albedo, height):
+    """The albedo in grey levels over its finite range, missing points transparent grey."""
+    return value_picture(albedo, height, "albedo", "albedo (relative)")
+
+
+def pore_overlay_picture(height, pores):
+    """The pores over the grey shaded height: each pore's opening tinted cyan (50%)."""
+    z, step = _decimate(_filled(np.where(height.mask, height.z, np.nan))[0], DISPLAY_PIXELS)
+    rgb = np.repeat(hillshade(z, (height.spacing[0] * step, height.spacing[1] * step))[..., None], 3, axis=-1)
+    inside = _decimate(pores.labels, DISPLAY_PIXELS)[0] > 0
+    rgb[inside] = 0.5 * rgb[inside] + 0.5 * np.array([0.0, 0.85, 0.95])
+    return _map_picture(f"{len(pores.pores)} pore(s)", rgb, height)
 
 
 def wrinkle_overlay_rgb(height, measures):
@@ -240,13 +267,15 @@ def _float32_base64(values):
 
 
 def build_report(*, title, height, albedo=None, parameters=(), regions=None, fractal_results=(), wrinkles=None, evaluations=None,
-                 settings=None, cross_sections=()):
+                 settings=None, cross_sections=(), pores=None, chromophores=None, chromophore_statistics=None):
     """The report as one HTML string (see the module notes). ``parameters`` is a list of
     :class:`skintopo.texture.Parameter` (the whole field); ``regions`` {name: (box in um
     x0, y0, x1, y1, its list of Parameter)} for the extra regions; ``wrinkles`` a :class:`skintopo.wrinkles.WrinkleMeasures`;
     ``evaluations`` {height map name: evaluation dict} when ground truth exists, with
     ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
-    and options, shown as given (escaped)."""
+    and options, shown as given (escaped); ``pores`` a :class:`skintopo.pores.PoreMeasures`;
+    ``chromophores`` a :class:`skintopo.chromophores.ChromophoreMaps` with its
+    ``chromophore_statistics`` per region."""
     from skintopo.texture import parameter_note
 
     field_mm = (height.shape[1] * height.spacing[1] / 1000, height.shape[0] * height.spacing[0] / 1000)
@@ -280,6 +309,16 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "evaluation_rows": [[n, e["rms_height_error_um"], e.get("rms_height_error_in_wrinkles_um"), e["l2_normal_error"],
                              e["mean_angular_error_deg"]] for n, e in (evaluations or {}).items()],
         "cross_sections": cross_sections,
+        "pores": pores.totals if pores is not None else None,
+        "pore_overlay": pore_overlay_picture(height, pores) if pores is not None else None,
+        "pore_rows": [[p.id, p.diameter_um, p.area_mm2, p.depth_um, p.mean_depth_um, p.volume_mm3, p.roundness]
+                      for p in (pores.pores if pores is not None else ())],
+        "colour_maps": [value_picture(chromophores.melanin, height, "melanin index", "melanin index (OD at 523 nm)", browns),
+                        value_picture(chromophores.haemoglobin, height, "haemoglobin index", "haemoglobin index (OD at 523 nm)", reds)]
+        if chromophores is not None else None,
+        "colour": {"reflectance": chromophores.reflectance, "smoothing_um": chromophores.smoothing_um} if chromophores is not None else None,
+        "colour_rows": [[region, name, s["mean"], s["standard_deviation"], s["relative_variation"]]
+                        for region, maps in (chromophore_statistics or {}).items() for name, s in maps.items()],
         "settings_rows": _setting_rows(settings or {}),
         # JSON inside <script type=application/json> is raw text: escape '<' so no '</script>' can close it.
         "payload": Markup(payload.replace("<", "\\u003c")),

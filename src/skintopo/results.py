@@ -4,8 +4,11 @@ A measure result folder holds ``parameters.json`` / ``parameters.csv`` (every te
 fractal parameter per region, with units and the standard's clause), ``wrinkles.json`` /
 ``wrinkles.csv`` / ``wrinkles.png`` (per-wrinkle measures and their label image),
 ``height.x3p`` (the measured height, metres inside the file per ISO 25178-72),
-``albedo.npy`` (when measured from an acquisition), ``summary.json`` (software version,
-source, options) and ``report.html``. A compare folder holds ``changes.json`` /
+``albedo.npy`` (when measured from an acquisition), ``pores.json`` / ``pores.csv`` /
+``pores.png`` (per-pore measures and their label image), ``chromophores.json``,
+``melanin.npy`` and ``haemoglobin.npy`` (the melanin and haemoglobin indices, from an
+acquisition with red, green and blue), ``summary.json`` (software version, source, options)
+and ``report.html``. A compare folder holds ``changes.json`` /
 ``changes.csv``, ``difference.x3p`` and, when both visits had one, the registered albedo.
 This module is the only one that knows these names; callers write into a staged folder
 (:func:`skintopo.outputs.staged_output_folder`) so a folder appears complete or not at all.
@@ -29,6 +32,10 @@ from skintopo.texture import finite_or_none
 PARAMETER_COLUMNS = ("region", "name", "value", "unit", "reference")
 CHANGE_COLUMNS = ("parameter", "baseline", "follow_up", "change", "change_percent", "detection_limit", "detectable")
 WRINKLE_TOTAL_UNITS = {"count": "", "total_length_mm": "mm", "mean_depth_um": "um", "area_fraction": ""}
+PORE_TOTAL_UNITS = {"count": "", "count_per_cm2": "1/cm2", "mean_area_mm2": "mm2", "mean_diameter_um": "um", "mean_depth_um": "um",
+                    "total_volume_mm3": "mm3"}
+CHROMOPHORE_STATISTICS = ("mean", "standard_deviation", "relative_variation")
+CHROMOPHORE_UNITS = {"mean": "OD", "standard_deviation": "OD", "relative_variation": ""}
 
 
 def run_header(command, **extra):
@@ -54,6 +61,24 @@ def write_wrinkle_files(folder, measures, segmentation):
     write_label_image(folder / "wrinkles.png", measures.labels)
 
 
+def write_pore_files(folder, pores):
+    """pores.json (totals, pores, settings), pores.csv and the id image pores.png."""
+    from skintopo.pores import PORE_COLUMNS
+
+    folder = Path(folder)
+    write_json(folder / "pores.json", pores.as_dict())
+    _write_csv(folder / "pores.csv", PORE_COLUMNS, (asdict(p) for p in pores.pores))
+    write_label_image(folder / "pores.png", pores.labels)
+
+
+def write_chromophore_files(folder, chromophores, regions):
+    """chromophores.json (model, sources, statistics per region), melanin.npy and haemoglobin.npy."""
+    folder = Path(folder)
+    write_json(folder / "chromophores.json", chromophores.as_dict(regions))
+    np.save(folder / "melanin.npy", chromophores.melanin)
+    np.save(folder / "haemoglobin.npy", chromophores.haemoglobin)
+
+
 def measurement_settings(measurement):
     """The settings recorded with a measurement (and shown in its report)."""
     return {"source": measurement.source, "options": measurement.options.as_dict(),
@@ -67,20 +92,29 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     folder = Path(folder)
     rows = measurement.parameter_rows()
     settings = measurement_settings(measurement)
+    regions = measurement.region_masks()
     summary = run_header(command, source=measurement.source, options=settings["options"], segmentation=settings["segmentation"],
-                         units="um unless stated", wrinkle_totals=measurement.wrinkles.totals, evaluation=evaluations)
+                         units="um unless stated", wrinkle_totals=measurement.wrinkles.totals,
+                         pore_totals=None if measurement.pores is None else measurement.pores.totals,
+                         chromophores=None if measurement.chromophores is None else measurement.chromophores.statistics(regions),
+                         evaluation=evaluations)
     write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
     _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
     write_wrinkle_files(folder, measurement.wrinkles, measurement.segmentation)
+    if measurement.pores is not None:
+        write_pore_files(folder, measurement.pores)
+    if measurement.chromophores is not None:
+        write_chromophore_files(folder, measurement.chromophores, regions)
     measurement.height.save(folder / "height.x3p")
     if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
         np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
     write_json(folder / "summary.json", summary)
     boxes = dict(measurement.options.regions)
-    regions = {name: (boxes[name], values) for name, values in measurement.texture.items() if name != "field"}
+    report_regions = {name: (boxes[name], values) for name, values in measurement.texture.items() if name != "field"}
     report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
-                          regions=regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles, evaluations=evaluations,
-                          settings=settings, cross_sections=cross_sections)
+                          regions=report_regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles,
+                          evaluations=evaluations, settings=settings, cross_sections=cross_sections, pores=measurement.pores,
+                          chromophores=measurement.chromophores, chromophore_statistics=summary["chromophores"])
     (folder / "report.html").write_text(report, encoding="utf-8")
     return summary
 
@@ -94,26 +128,39 @@ def _read_json(path):
 
 def read_measurement_values(folder):
     """({name: value}, {name: unit}) of a measure result folder: field parameters by name,
-    region parameters as ``region.name``, wrinkle totals as ``wrinkles.name``."""
+    region parameters as ``region.name``, wrinkle totals as ``wrinkles.name``, pore totals as
+    ``pores.name`` and the melanin and haemoglobin statistics as ``melanin.mean`` (field) or
+    ``region.melanin.mean`` (when the folder has them)."""
     folder = Path(folder)
     values, units = {}, {}
     for p in _read_json(folder / "parameters.json")["parameters"]:
         name = p["name"] if p["region"] == "field" else f"{p['region']}.{p['name']}"
         values[name], units[name] = p["value"], p["unit"]
-    totals = _read_json(folder / "wrinkles.json")["totals"]
-    for name, unit in WRINKLE_TOTAL_UNITS.items():
-        values[f"wrinkles.{name}"], units[f"wrinkles.{name}"] = totals[name], unit
+    for prefix, path, table in (("wrinkles", folder / "wrinkles.json", WRINKLE_TOTAL_UNITS), ("pores", folder / "pores.json", PORE_TOTAL_UNITS)):
+        if path.is_file() or prefix == "wrinkles":
+            totals = _read_json(path)["totals"]
+            for name, unit in table.items():
+                values[f"{prefix}.{name}"], units[f"{prefix}.{name}"] = finite_or_none(totals[name]), unit
+    if (folder / "chromophores.json").is_file():
+        for region, maps in _read_json(folder / "chromophores.json")["regions"].items():
+            for chromophore, statistics in maps.items():
+                for statistic in CHROMOPHORE_STATISTICS:
+                    name = f"{chromophore}.{statistic}" if region == "field" else f"{region}.{chromophore}.{statistic}"
+                    values[name], units[name] = statistics[statistic], CHROMOPHORE_UNITS[statistic]
     return values, units
 
 
 def comparison_rows(comparison, limits=None):
     """One row per changed quantity of a :class:`skintopo.compare.Comparison`: texture
-    parameters, wrinkle totals (``wrinkles.name``) and matched wrinkles (``wrinkleN.measure``),
-    with the detection limit from repeat captures where they were given."""
+    parameters, wrinkle totals (``wrinkles.name``), pore totals (``pores.name``), colour
+    statistics (``melanin.mean``, ...) and matched wrinkles (``wrinkleN.measure``), with the
+    detection limit from repeat captures where they were given."""
     limits = limits or {}
     rows = [{"parameter": name, **record, "detection_limit": limits.get(name)} for name, record in comparison.texture.items()]
     rows += [{"parameter": f"wrinkles.{name}", **record, "detection_limit": limits.get(f"wrinkles.{name}")}
              for name, record in comparison.totals.items()]
+    rows += [{"parameter": f"pores.{name}", **record, "detection_limit": limits.get(f"pores.{name}")} for name, record in comparison.pores.items()]
+    rows += [{"parameter": name, **record, "detection_limit": limits.get(name)} for name, record in comparison.colour.items()]
     for wrinkle_id, record in comparison.wrinkles.items():
         for name, change in record.items():
             if isinstance(change, dict):
@@ -158,12 +205,23 @@ def load_height_input(path, pixel_um=None):
     return HeightMap.load(path, pixel_um=pixel_um)
 
 
+def _load_array_beside(path, name):
+    path = Path(path)
+    if path.is_dir() and (path / name).is_file():
+        try:
+            return np.load(path / name)
+        except (OSError, ValueError) as error:
+            raise SkinTopoError(f"{path / name}: not a readable NumPy array ({error})") from None
+    return None
+
+
 def load_albedo_beside(path):
     """The albedo.npy a result folder holds (the output of measure), or None."""
-    path = Path(path)
-    if path.is_dir() and (path / "albedo.npy").is_file():
-        try:
-            return np.load(path / "albedo.npy")
-        except (OSError, ValueError) as error:
-            raise SkinTopoError(f"{path / 'albedo.npy'}: not a readable NumPy array ({error})") from None
-    return None
+    return _load_array_beside(path, "albedo.npy")
+
+
+def load_colour_beside(path):
+    """{"melanin": map, "haemoglobin": map} from a result folder's melanin.npy and
+    haemoglobin.npy (the output of measure from an acquisition), or None."""
+    maps = {name: _load_array_beside(path, f"{name}.npy") for name in ("melanin", "haemoglobin")}
+    return maps if all(value is not None for value in maps.values()) else None

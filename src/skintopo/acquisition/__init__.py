@@ -12,6 +12,10 @@ Two folder layouts are read.
       "gamma": 1.0,                       # optional; 1.0 = linear data (default), a number g
                                           # means linear = value ** g, "srgb" undoes sRGB
       "full_scale": 65535,                # optional; default from the bit depth (255, 65535)
+      "white_reference": {                # optional; a white target of known diffuse reflectance
+        "box_px": [0, 0, 40, 40],         # in the images: rows 0:40, columns 0:40 (keep it
+        "reflectance": 0.95},             # out of "mask"); one value or one per band (red, green,
+                                          # blue): the albedo becomes absolute reflectance
       "images": [
         {"file": "red_0.png", "band": "red", "light": [0.707, 0.0, 0.707],
          "intensity": 1.0,                # optional relative light intensity, default 1
@@ -48,7 +52,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skintopo.acquisition.capture import BANDS, MANIFEST_NAME, Acquisition, BandImages
+from skintopo.acquisition.capture import BANDS, MANIFEST_NAME, Acquisition, BandImages, WhiteReference
 from skintopo.acquisition.diligent import load_diligent
 from skintopo.acquisition.images import RAW_SUFFIXES, read_image
 from skintopo.lights import check_light_directions
@@ -57,7 +61,7 @@ from skintopo.defaults import DEFAULT_SATURATION
 from skintopo.errors import AcquisitionError
 
 __all__ = ["BANDS", "DEFAULT_SATURATION", "MANIFEST_NAME", "RAW_SUFFIXES", "Acquisition", "BandImages", "check_light_directions",
-           "load_acquisition", "read_image", "write_acquisition"]
+           "load_acquisition", "read_image", "write_acquisition", "WhiteReference"]
 
 
 def load_acquisition(path, *, pixel_um=None, bands=None, saturation=DEFAULT_SATURATION, bytes_per_pixel=None):

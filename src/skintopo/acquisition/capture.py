@@ -60,6 +60,23 @@ class BandImages:
     leds: tuple | None = None
 
 
+@dataclass(frozen=True)
+class WhiteReference:
+    """A white reference target of known diffuse reflectance in the images (manifest field
+    ``white_reference``): its box in pixels, rows ``row_start:row_stop``, columns
+    ``column_start:column_stop`` (Python slices, so stop is one past the last), and its
+    reflectance per band in (0, 1]."""
+
+    box_px: tuple
+    reflectance: dict
+
+    @property
+    def slices(self):
+        """(rows, columns) slices of the box."""
+        top, left, bottom, right = self.box_px
+        return slice(top, bottom), slice(left, right)
+
+
 @dataclass(frozen=True, eq=False)
 class Acquisition:
     """One validated capture: images per band, the pixel size and the mask.
@@ -80,6 +97,9 @@ class Acquisition:
     device : skintopo.device.Device or None
         The camera and near-field LEDs the images were taken with; None: distant lights and
         an orthographic camera.
+    white_reference : WhiteReference or None
+        A white target of known reflectance in the images, for absolute reflectance
+        (:mod:`skintopo.chromophores`).
     """
 
     source: Path
@@ -89,6 +109,7 @@ class Acquisition:
     pixel_um_assumed: bool
     mask: np.ndarray
     device: object = None
+    white_reference: WhiteReference | None = None
 
     @property
     def shape(self):

@@ -22,6 +22,7 @@ from skintopo.acquisition.capture import (
     MANIFEST_NAME,
     Acquisition,
     BandImages,
+    WhiteReference,
     check_bands_requested,
     positive_number,
 )
@@ -35,7 +36,56 @@ _IMAGE_KEYS = {"file", "band", "light", "led", "intensity", "wavelength_nm", "ch
 
 
 _MANIFEST_KEYS = {"format", "version", "pixel_size_um", "mask", "gamma", "full_scale", "images", "description", "dark", "crosstalk",
-                  "device"}
+                  "device", "white_reference"}
+_WHITE_REFERENCE_KEYS = {"box_px", "reflectance"}
+SATURATED_REFERENCE_LIMIT = 0.01  # more than this fraction of a white reference box's observations saturated: refused
+
+
+def _white_reference(entry, name, problems):
+    """The manifest's ``white_reference`` as a :class:`WhiteReference` (None, with the
+    problems appended, when it is malformed): ``{"box_px": [row_start, column_start,
+    row_stop, column_stop], "reflectance": r or {"red": r, "green": r, "blue": r}}``."""
+    label = f"{name}: field 'white_reference'"
+    if not isinstance(entry, dict):
+        problems.append(f"{label} must be an object with 'box_px' and 'reflectance'")
+        return None
+    unknown = sorted(set(entry) - _WHITE_REFERENCE_KEYS)
+    missing = sorted(_WHITE_REFERENCE_KEYS - set(entry))
+    if unknown or missing:
+        problems.append(f"{label}: " + "; ".join(filter(None, [unknown and f"unknown keys {unknown}", missing and f"missing {missing}"])))
+        return None
+    box = entry["box_px"]
+    if not (isinstance(box, list) and len(box) == 4 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in box)
+            and box[2] > box[0] and box[3] > box[1]):
+        problems.append(f"{label}: 'box_px' must be [row_start, column_start, row_stop, column_stop], non-negative integers with "
+                        f"stop > start, got {box!r}")
+        return None
+    value = entry["reflectance"]
+    reflectance = dict.fromkeys(("red", "green", "blue"), value) if not isinstance(value, dict) else value
+    bad = {band: r for band, r in reflectance.items() if not (positive_number(r) and r <= 1)}
+    if set(reflectance) != {"red", "green", "blue"} or bad:
+        problems.append(f"{label}: 'reflectance' must be a number in (0, 1] or one per band (red, green, blue), got {value!r}")
+        return None
+    return WhiteReference(tuple(box), {band: float(r) for band, r in reflectance.items()})
+
+
+def _white_reference_problems(reference, by_band, shape, name):
+    """The box must lie inside the images, hold no more than 1% saturated observations in
+    any image and be lit."""
+    top, left, bottom, right = reference.box_px
+    if bottom > shape[0] or right > shape[1]:
+        return [f"{name}: the white reference box {list(reference.box_px)} reaches outside the {shape[0]} x {shape[1]} images"]
+    problems = []
+    rows, columns = reference.slices
+    for band in ("red", "green", "blue"):
+        if band not in by_band:
+            continue
+        for file, image in zip(by_band[band].files, by_band[band].images):
+            saturated = float(np.isnan(image[rows, columns]).mean())
+            if saturated > SATURATED_REFERENCE_LIMIT:
+                problems.append(f"{Path(file).name}: {100 * saturated:.1f}% of the white reference box is saturated: lower the "
+                                "exposure (the reference must be captured unsaturated under every light)")
+    return problems
 
 
 def load_manifest(manifest_path, pixel_um, bands, saturation, bytes_per_pixel=None):
@@ -82,6 +132,11 @@ def load_manifest(manifest_path, pixel_um, bands, saturation, bytes_per_pixel=No
     if device is not None and positive_number(declared_pixel) and abs(declared_pixel / device.pixel_um - 1) > 1e-3:
         problems.append(f"{name}: pixel_size_um is {declared_pixel} but the device's pixel footprint at its working distance is "
                         f"{device.pixel_um:.6g} um")
+    white_reference = None
+    if manifest.get("white_reference") is not None:
+        white_reference = _white_reference(manifest["white_reference"], name, problems)
+        if device is not None and white_reference is not None:
+            problems.append(f"{name}: a white reference box is not supported with a device (near-field LEDs light it unevenly)")
     dark_file = manifest.get("dark")
     if dark_file is not None and not (isinstance(dark_file, str) and dark_file):
         problems.append(f"{name}: field 'dark' must name an image file")
@@ -220,12 +275,16 @@ def load_manifest(manifest_path, pixel_um, bands, saturation, bytes_per_pixel=No
                         f"{device.camera.size_px[0]} x {device.camera.size_px[1]}")
     if problems:
         raise AcquisitionError(manifest_path, problems)
+    if white_reference is not None:
+        problems += _white_reference_problems(white_reference, by_band, shape, name)
+    if problems:
+        raise AcquisitionError(manifest_path, problems)
     if mask is None:
         mask = np.ones(shape, dtype=bool)
-    return Acquisition(folder, "manifest", by_band, float(declared_pixel), False, mask, device)
+    return Acquisition(folder, "manifest", by_band, float(declared_pixel), False, mask, device, white_reference)
 
 
-def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None, device=None):
+def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, intensities=None, device=None, white_reference=None):
     """Write images to an acquisition folder in the manifest format (16-bit PNG, linear).
 
     Parameters
@@ -248,6 +307,8 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     device : skintopo.device.Device, optional
         Written as ``device.json``; the images of each band are then one per LED, in the
         device's order, and entries name their LED instead of a light direction.
+    white_reference : WhiteReference, optional
+        Written as the manifest field ``white_reference``.
 
     Returns
     -------
@@ -284,6 +345,8 @@ def write_acquisition(folder, bands, pixel_um, *, mask=None, description=None, i
     if mask is not None:
         write_png(folder / "mask.png", np.where(np.asarray(mask, dtype=bool), 255, 0).astype(np.uint8))
         manifest["mask"] = "mask.png"
+    if white_reference is not None:
+        manifest["white_reference"] = {"box_px": list(white_reference.box_px), "reflectance": dict(white_reference.reflectance)}
     manifest["images"] = entries
     path = folder / MANIFEST_NAME
     path.write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")

@@ -18,6 +18,7 @@ def run(args):
     check_output_folder(args.out, overwrite=args.overwrite, inputs=inputs)
     result = compare_results(args.baseline, args.follow_up, repeat=args.repeat, pixel_um=args.pixel_um, allow_scale=args.allow_scale,
                              confidence=args.confidence / 100, segmentation=shared.segmentation_options(args), wrinkles=shared.wrinkle_options(args),
+                             pores=shared.pore_options(args),
                              progress=shared.step_progress(args, desc="compare"))
     comparison, registration = result.comparison, result.comparison.registration
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=inputs) as staging:
@@ -56,5 +57,6 @@ def add_parser(commands):
     compare.add_argument("--pixel-um", type=shared.positive_float, help="pixel size for .npy maps")
     shared.add_segmentation_options(compare)
     shared.add_wrinkle_options(compare)
+    shared.add_pore_options(compare)
     shared.add_output_switches(compare)
     compare.set_defaults(handler=run)

@@ -11,6 +11,7 @@ from skintopo.defaults import (
     AUTO_HEIGHT,
     AUTO_INTEGRATOR,
     DEFAULT_ALONG_CLOSING_UM,
+    DEFAULT_COLOUR_SMOOTHING_UM,
     DEFAULT_CUTOFF_UM,
     DEFAULT_DEPTH_SHORT_CUTOFF_UM,
     DEFAULT_DEPTH_WINDOW_UM,
@@ -21,6 +22,10 @@ from skintopo.defaults import (
     DEFAULT_MIN_DEPTH_UM,
     DEFAULT_MIN_LENGTH_UM,
     DEFAULT_P,
+    DEFAULT_PORE_EDGE_UM,
+    DEFAULT_PORE_MAX_OPENING_UM,
+    DEFAULT_PORE_MIN_DEPTH_UM,
+    DEFAULT_PORE_MIN_OPENING_UM,
     DEFAULT_Q,
     DEFAULT_SATURATION,
     DEFAULT_SHADOW_FRACTION,
@@ -58,6 +63,7 @@ def number_type(convert, accept, requirement):
 positive_float = number_type(float, lambda v: v > 0, "a positive number")
 non_negative_float = number_type(float, lambda v: v >= 0, "zero or positive")
 fraction = number_type(float, lambda v: 0 <= v < 1, "in [0, 1)")
+unit_fraction = number_type(float, lambda v: 0 < v <= 1, "in (0, 1]")
 size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
 positive_int = number_type(int, lambda v: v >= 1, "1 or more")
 non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
@@ -134,7 +140,7 @@ def reconstruction_options(args):
 
 
 def measure_options(args, method=None):
-    from skintopo.pipeline import HeightOptions, MeasureOptions, TextureOptions
+    from skintopo.pipeline import ColourOptions, HeightOptions, MeasureOptions, TextureOptions
 
     return MeasureOptions(
         reconstruction=reconstruction_options(args),
@@ -143,6 +149,8 @@ def measure_options(args, method=None):
         texture=TextureOptions(level_order=args.level, p=args.p, q=args.q),
         regions=tuple(args.region),
         wrinkles=wrinkle_options(args),
+        pores=pore_options(args),
+        colour=ColourOptions(smoothing_um=args.colour_smoothing_um),
     )
 
 
@@ -183,6 +191,13 @@ def wrinkle_options(args):
 
     return WrinkleOptions(furrow_closing_um=args.furrow_closing_um, along_closing_um=args.along_closing_um,
                           depth_window_um=args.depth_window_um, short_cutoff_um=args.depth_short_cutoff_um)
+
+
+def pore_options(args):
+    from skintopo.pipeline import PoreOptions
+
+    return PoreOptions(max_opening_um=args.pore_max_opening_um, min_opening_um=args.pore_min_opening_um, min_depth_um=args.pore_min_depth_um,
+                       edge_um=args.pore_edge_um)
 
 
 def parse_region(text):
@@ -229,6 +244,18 @@ def add_wrinkle_options(parser):
                         "wrinkles narrower than about 4 x the cut-off read shallower)")
 
 
+def add_pore_options(parser):
+    """The pore measures' settings (skintopo.pores)."""
+    parser.add_argument("--pore-max-opening-um", type=positive_float, default=DEFAULT_PORE_MAX_OPENING_UM,
+                        help=f"largest pore opening (default {DEFAULT_PORE_MAX_OPENING_UM:g}; pits wider are not pores)")
+    parser.add_argument("--pore-min-opening-um", type=positive_float, default=DEFAULT_PORE_MIN_OPENING_UM,
+                        help=f"smallest pore opening (default {DEFAULT_PORE_MIN_OPENING_UM:g})")
+    parser.add_argument("--pore-min-depth-um", type=positive_float, default=DEFAULT_PORE_MIN_DEPTH_UM,
+                        help=f"a pore is at least this deep below its rim (default {DEFAULT_PORE_MIN_DEPTH_UM:g})")
+    parser.add_argument("--pore-edge-um", type=positive_float, default=DEFAULT_PORE_EDGE_UM,
+                        help=f"a pore's opening is where it is deeper than this (default {DEFAULT_PORE_EDGE_UM:g})")
+
+
 def add_physics_kernels_option(parser):
     parser.add_argument("--physics-kernels", metavar="PROFILE", default=None,
                         help="physics only: take the scattering kernels from a skin-optics profile's diffusion profiles "
@@ -251,6 +278,10 @@ def add_measure_options(parser):
                         help="extra region NAME=x0,y0,x1,y1 in um from the top-left corner (pixel edges; repeatable)")
     add_segmentation_options(parser)
     add_wrinkle_options(parser)
+    add_pore_options(parser)
+    parser.add_argument("--colour-smoothing-um", type=non_negative_float, default=DEFAULT_COLOUR_SMOOTHING_UM,
+                        help="melanin and haemoglobin maps: sigma of the Gaussian on the optical densities before the inversion "
+                        f"(default {DEFAULT_COLOUR_SMOOTHING_UM:g}; 0: per pixel)")
 
 
 def coordinate_pair(text):

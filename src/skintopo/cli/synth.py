@@ -14,6 +14,8 @@ def run(args):
     from skintopo.outputs import check_output_folder
     from skintopo.synth import (PRESETS, Effects, another_visit, default_settings, optics_profile, preset_spec, simulate_to_folder,
                                 write_calibration_target)
+    from skintopo.synth.render import Pigmentation
+    from skintopo.synth.surfaces import place_pores
 
     if args.target is not None:
         check_output_folder(args.out, overwrite=args.overwrite)
@@ -30,9 +32,14 @@ def run(args):
         spec = another_visit(preset_spec(args.preset, size_px=size, pixel_um=pixel), depth_factors=dict(args.treat), shift_um=args.shift_um)
     except SkinTopoError as error:
         raise SkinTopoError(f"--treat: preset {args.preset}: {error}") from None
+    if args.pores:
+        spec = place_pores(spec, args.seed, args.pores)
+    if device is not None and args.white_reference is not None:
+        raise SkinTopoError("--white-reference: not with --device (a white reference box is for distant-light captures)")
     effects = Effects(shadows=not args.no_shadows, interreflection=not args.no_interreflection, bounces=1 if args.single_bounce else None,
                       specular=not args.no_specular, translucency=not args.no_translucency, albedo_variation=not args.no_albedo_variation)
-    settings = default_settings(skin=args.skin, optics=optics_profile(args.optics), effects=effects, noise=args.noise, saturate=args.saturate)
+    settings = default_settings(skin=args.skin, optics=optics_profile(args.optics), effects=effects, noise=args.noise, saturate=args.saturate,
+                                pigmentation=Pigmentation(seed=args.seed) if args.pigmentation else None, white_reference=args.white_reference)
     started = time.perf_counter()
     simulate_to_folder(args.out, spec, settings, seed=args.seed, capture_seed=args.capture_seed, device=device, manifest=not args.no_manifest,
                        overwrite=args.overwrite, progress=lambda bands: shared.progress(bands, quiet=args.quiet, desc="render", total=3))
@@ -86,5 +93,12 @@ def add_parser(commands):
     synth.add_argument("--no-translucency", action="store_true", help="no subsurface scattering (opaque skin)")
     synth.add_argument("--no-shadows", action="store_true", help="no cast shadows")
     synth.add_argument("--no-albedo-variation", action="store_true", help="uniform albedo instead of a mild spatial variation")
+    synth.add_argument("--pigmentation", action="store_true",
+                       help="albedo made from melanin and haemoglobin maps (spots, a reddened patch), written as ground_truth/melanin.npy, "
+                            "haemoglobin.npy")
+    synth.add_argument("--white-reference", type=shared.unit_fraction, metavar="R",
+                       help="a flat white target of reflectance R in (0, 1] in the top-left tenth of the field (in the manifest, out of the mask)")
+    synth.add_argument("--pores", type=shared.non_negative_int, default=0, metavar="N",
+                       help="N pores (openings 0.05-0.5 mm, 20-120 um deep) on the skin's plateaus, in ground_truth/pores.png")
     shared.add_output_switches(synth)
     synth.set_defaults(handler=run)

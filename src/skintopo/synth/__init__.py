@@ -115,7 +115,13 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
     settings = with_interreflection_radius(settings, surface.spec.wrinkles)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
-    linear, info = render_bands(surface.height, surface.normals, settings, rng, progress)
+    linear, info = render_bands(surface.height, surface.normals, settings, rng, progress, shift_um=surface.spec.shift_um)
+    if settings.white_reference is not None:  # a flat Lambertian target: I = r l_z under each light
+        reference = white_reference_box(surface.height.shape, settings.white_reference)
+        rows, columns = reference.slices
+        for band in ("red", "green", "blue"):
+            linear[band][:, rows, columns] = (reference.reflectance[band] * np.maximum(np.asarray(settings.lights)[:, 2], 0))[:, None, None]
+        info["white_reference"] = reference
     linear["white"] = (linear["red"] + linear["green"] + linear["blue"]) / 3
     info["seconds_render"] = time.perf_counter() - start
     lights = np.asarray(settings.lights, dtype=float)
@@ -128,6 +134,14 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
     return bands, info
 
 
+def white_reference_box(shape, reflectance):
+    """The simulator's white reference: a flat target of ``reflectance`` covering the top-left
+    tenth of each side of the field (:class:`~skintopo.acquisition.WhiteReference`)."""
+    from skintopo.acquisition import WhiteReference
+
+    return WhiteReference((0, 0, max(shape[0] // 10, 4), max(shape[1] // 10, 4)), dict.fromkeys(("red", "green", "blue"), float(reflectance)))
+
+
 def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: RenderSettings, seed, info=None, overwrite=False,
                                 capture_seed=None, manifest=True, device=None):
     """Write an acquisition folder plus ``ground_truth/`` (height.x3p, normals.npy,
@@ -136,16 +150,22 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
     ``acquisition.json``: the images as a camera writes them, for ``skintopo init``. With a
     ``device`` (:mod:`skintopo.synth.nearfield`), ``device.json`` is written and the images
     name their LEDs; ``surface`` is then the truth on the camera's grid."""
+    reference = (info or {}).get("white_reference")
+    mask = np.ones(surface.height.shape, bool)
+    if reference is not None:  # the target is not skin
+        mask[reference.slices] = False
     with staged_output_folder(out, overwrite=overwrite) as staging:
         write_acquisition(
-            staging, bands, surface.spec.pixel_um, mask=np.ones(surface.height.shape, bool),
-            description="skintopo synthetic skin acquisition", intensities=(info or {}).get("exposure_gain"), device=device,
+            staging, bands, surface.spec.pixel_um, mask=mask, description="skintopo synthetic skin acquisition",
+            intensities=(info or {}).get("exposure_gain"), device=device, white_reference=reference,
         )
         truth = staging / "ground_truth"
         truth.mkdir()
         surface.height.save(truth / "height.x3p")
         np.save(truth / "normals.npy", surface.normals.astype(np.float32))
         write_label_image(truth / "wrinkles.png", surface.wrinkle_labels)
+        if surface.pore_labels is not None and surface.spec.pores:
+            write_label_image(truth / "pores.png", surface.pore_labels)
         for name, values in (info or {}).get("chromophores", {}).items():  # melanin.npy, haemoglobin.npy, baseline.npy
             np.save(truth / f"{name}.npy", np.asarray(values, dtype=np.float32))
         description = {
@@ -164,12 +184,14 @@ def write_synthetic_acquisition(out, surface: SkinSurface, bands, *, settings: R
                 "noise": settings.noise,
                 "saturate": settings.saturate,
                 "pigmentation": None if settings.pigmentation is None else asdict(settings.pigmentation),
+                "white_reference": settings.white_reference,
             },
             "wrinkle_measures": [geometric_measures(w) for w in surface.spec.wrinkles],
             "wrinkles_png": "0 = no wrinkle, i = wrinkle i (1-based, order of surface.wrinkles), half-depth region",
             "chromophores": ("melanin.npy, haemoglobin.npy, baseline.npy: optical densities at 523 nm (skintopo.chromophores)"
                              if "chromophores" in (info or {}) else None),
-            "diagnostics": {key: value for key, value in (info or {}).items() if key != "chromophores"},
+            "pores_png": "0 = no pore, i = pore i (1-based, order of surface.pores), the opening",
+            "diagnostics": {key: value for key, value in (info or {}).items() if key not in ("chromophores", "white_reference")},
         }
         (truth / "surface.json").write_text(json.dumps(description, indent=2, default=float) + "\n", encoding="utf-8")
         if not manifest:

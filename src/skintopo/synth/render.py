@@ -180,7 +180,10 @@ class Pigmentation:
     """Melanin and haemoglobin maps behind the albedo (module notes). Relative variations
     are RMS values of a smooth Gaussian random field of correlation length ``scale_um``;
     each spot multiplies the melanin index by 1 + ``spot_strength`` inside a disc (smooth
-    edge), the erythema patch the haemoglobin index by 1 + ``erythema_strength``."""
+    edge), the erythema patch the haemoglobin index by 1 + ``erythema_strength``. The maps
+    belong to the skin, not to the capture: they are drawn from ``seed`` in the skin's
+    coordinates, so a later visit of the same skin (``SurfaceSpec.shift_um``) sees the same
+    pigmentation, displaced."""
 
     melanin_variation: float = 0.15
     haemoglobin_variation: float = 0.2
@@ -190,6 +193,7 @@ class Pigmentation:
     spot_radius_um: tuple = (250.0, 700.0)
     erythema_strength: float = 0.8
     erythema_radius_um: float = 1200.0
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -207,6 +211,7 @@ class RenderSettings:
     noise: float = 1.0
     saturate: bool = False
     pigmentation: Pigmentation | None = None  # albedo from melanin and haemoglobin maps (module notes)
+    white_reference: float | None = None  # reflectance of a flat white target in the field's top-left corner (a tenth of each side)
 
 
 def with_interreflection_radius(settings: RenderSettings, wrinkles):
@@ -218,36 +223,46 @@ def with_interreflection_radius(settings: RenderSettings, wrinkles):
     return replace(settings, interreflection_radius_um=max(400.0, widest))
 
 
-def _smooth_field(shape, sigma_px, rng):
-    """A zero-mean, unit-RMS Gaussian random field of correlation length ``sigma_px``."""
+def _smooth_field(shape, sigma_px, rng, shift_px=(0.0, 0.0)):
+    """A zero-mean, unit-RMS Gaussian random field of correlation length ``sigma_px``
+    (white noise smoothed with wrap-around), displaced by ``shift_px`` (x right, y up; a phase
+    ramp, exact for the periodic field)."""
     pattern = scipy.ndimage.gaussian_filter(rng.standard_normal(shape), sigma=max(1.0, sigma_px), mode="wrap")
+    if any(shift_px):
+        ky = np.fft.fftfreq(shape[0])[:, None]
+        kx = np.fft.fftfreq(shape[1])[None, :]
+        pattern = np.fft.ifft2(np.fft.fft2(pattern) * np.exp(2j * np.pi * (kx * shift_px[0] - ky * shift_px[1]))).real
     return pattern / (pattern.std() if pattern.std() > 0 else 1)
 
 
-def _discs(shape, pixel, count, radius_range, rng):
-    """Sum of ``count`` discs at random places, 1 inside with a smooth edge (a logistic over
-    2 pixels), radii uniform in ``radius_range`` (um)."""
+def _discs(shape, pixel, count, radius_range, rng, shift_um=(0.0, 0.0)):
+    """Sum of ``count`` discs at random places of the skin (the field displaced by
+    ``shift_um``, x right, y up), 1 inside with a smooth edge (a logistic over 2 pixels),
+    radii uniform in ``radius_range`` (um)."""
     rows, columns = np.mgrid[0 : shape[0], 0 : shape[1]]
     total = np.zeros(shape)
     for _ in range(count):
         radius = rng.uniform(*radius_range) / pixel
-        centre = rng.uniform(radius, np.array(shape) - radius)
+        centre = rng.uniform(radius, np.array(shape) - radius) - np.array([-shift_um[1], shift_um[0]]) / pixel
         distance = np.hypot(rows - centre[0], columns - centre[1])
         total += scipy.special.expit((radius - distance) / 0.5)
     return total
 
 
-def pigmentation_maps(shape, pixel, base_albedo, pigmentation: Pigmentation, rng):
-    """(melanin, haemoglobin, baseline) maps (optical densities at 523 nm) whose mean
-    (before spots) reproduces ``base_albedo`` (dict band -> value) through the model of
-    :mod:`skintopo.chromophores`."""
+def pigmentation_maps(shape, pixel, base_albedo, pigmentation: Pigmentation, shift_um=(0.0, 0.0)):
+    """(melanin, haemoglobin, baseline) maps (optical densities at 523 nm) of the field
+    displaced by ``shift_um`` on the skin, whose mean (before spots) reproduces
+    ``base_albedo`` (dict band -> value) through the model of :mod:`skintopo.chromophores`."""
+    rng = np.random.default_rng(pigmentation.seed)
     melanin0, haemoglobin0, baseline0 = chromophore_indices({b: np.array(base_albedo[b]) for b in RGB})
     sigma = pigmentation.scale_um / pixel
-    melanin = melanin0 * (1 + pigmentation.melanin_variation * np.clip(_smooth_field(shape, sigma, rng), -3, 3))
-    melanin *= 1 + pigmentation.spot_strength * np.minimum(_discs(shape, pixel, pigmentation.spots, pigmentation.spot_radius_um, rng), 1)
-    haemoglobin = haemoglobin0 * (1 + pigmentation.haemoglobin_variation * np.clip(_smooth_field(shape, sigma, rng), -3, 3))
+    shift_px = (shift_um[0] / pixel, shift_um[1] / pixel)
+    melanin = melanin0 * (1 + pigmentation.melanin_variation * np.clip(_smooth_field(shape, sigma, rng, shift_px), -3, 3))
+    spots = _discs(shape, pixel, pigmentation.spots, pigmentation.spot_radius_um, rng, shift_um)
+    melanin *= 1 + pigmentation.spot_strength * np.minimum(spots, 1)
+    haemoglobin = haemoglobin0 * (1 + pigmentation.haemoglobin_variation * np.clip(_smooth_field(shape, sigma, rng, shift_px), -3, 3))
     radius = pigmentation.erythema_radius_um
-    haemoglobin *= 1 + pigmentation.erythema_strength * _discs(shape, pixel, 1, (radius, radius), rng)
+    haemoglobin *= 1 + pigmentation.erythema_strength * _discs(shape, pixel, 1, (radius, radius), rng, shift_um)
     return melanin, haemoglobin, np.full(shape, float(baseline0))
 
 
@@ -258,7 +273,7 @@ def _albedo_maps(shape, pixel, base, vary, rng):
     return {band: value * variation for band, value in base.items()}
 
 
-def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, *, near: NearLighting | None = None):
+def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, *, near: NearLighting | None = None, shift_um=(0.0, 0.0)):
     """Linear images per band, before the sensor: dict band -> (m, rows, columns), on the
     height field's grid.
 
@@ -266,7 +281,8 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     iteration over the three bands (e.g. a progress bar). With ``near``, the lights are point
     LEDs and the view is a perspective camera's (``settings.lights`` is then not used); the
     images are still on the height field's grid (:mod:`skintopo.synth.nearfield` projects
-    them into the camera).
+    them into the camera). ``shift_um``: where the field lies on the skin (the pigmentation
+    maps follow it).
     """
     z = np.asarray(height.z, dtype=float)
     pixel = height.spacing[1]
@@ -275,7 +291,7 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     if settings.pigmentation is None:
         albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
     else:
-        melanin, haemoglobin, baseline = pigmentation_maps(z.shape, pixel, optics.albedo[settings.skin], settings.pigmentation, rng)
+        melanin, haemoglobin, baseline = pigmentation_maps(z.shape, pixel, optics.albedo[settings.skin], settings.pigmentation, shift_um)
         albedo = forward_reflectance(melanin, haemoglobin, baseline)
     roughness = optics.specular_roughness if settings.specular_roughness is None else settings.specular_roughness
     operator = None
