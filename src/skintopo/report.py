@@ -313,8 +313,8 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "pore_overlay": pore_overlay_picture(height, pores) if pores is not None else None,
         "pore_rows": [[p.id, p.diameter_um, p.area_mm2, p.depth_um, p.mean_depth_um, p.volume_mm3, p.roundness]
                       for p in (pores.pores if pores is not None else ())],
-        "colour_maps": [value_picture(chromophores.melanin, height, "melanin index", "melanin index (OD at 523 nm)", browns),
-                        value_picture(chromophores.haemoglobin, height, "haemoglobin index", "haemoglobin index (OD at 523 nm)", reds)]
+        "colour_maps": [value_picture(chromophores.melanin, height, "melanin index", "melanin (OD at 523 nm)", browns),
+                        value_picture(chromophores.haemoglobin, height, "haemoglobin index", "haemoglobin (OD at 523 nm)", reds)]
         if chromophores is not None else None,
         "colour": {"reflectance": chromophores.reflectance, "smoothing_um": chromophores.smoothing_um} if chromophores is not None else None,
         "colour_rows": [[region, name, s["mean"], s["standard_deviation"], s["relative_variation"]]

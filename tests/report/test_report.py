@@ -93,7 +93,7 @@ def test_height_map_picture_colours_heights_and_shows_missing_points():
     z = ramp.copy()
     z[5:9, 10:20] = np.nan
     page = build_report(title="t", height=HeightMap(z, 10.0))
-    assert re.search(r"<span>0</span><img alt=\"colour bar\"[^>]*><span>50</span> height \(um\)", page)
+    assert re.search(r"<span>0</span><img alt=\"colour bar\"[^>]*><span>50</span></span> height \(um\)", page)
     image = _pictures(page)[0]
     assert image.shape == (40, 60, 4)
     assert (image[5:9, 10:20] == np.round(np.array([0.6, 0.6, 0.6, 0.3]) * 255)).all()
