@@ -1,4 +1,5 @@
-"""``skintopo measure``: every texture, fractal and wrinkle measure, with the report."""
+"""``skintopo measure``: every texture, fractal, wrinkle and pore measure, the melanin and
+haemoglobin maps, with the report."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ from skintopo.cli import options as shared
 
 
 def run(args):
+    import numpy as np
+
     from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.pipeline import measure_acquisition, measure_height
     from skintopo.results import load_albedo_beside, load_height_input, write_measurement
@@ -33,7 +36,15 @@ def run(args):
             value = "NaN" if row["value"] is None else f"{row['value']:14.5g}"
             print(f"{row['region']:<10} {row['name']:<24} {value:>14} {row['unit']}")
         print(f"measured height: {measurement.source['height']}")
-        print(f"{measurement.wrinkles.totals['count']} wrinkle(s); report: {(Path(args.out) / 'report.html').resolve()}")
+        pores = measurement.pores.totals
+        print(f"{measurement.wrinkles.totals['count']} wrinkle(s), {pores['count']} pore(s) ({pores['count_per_cm2']:.1f} per cm2)")
+        colour = measurement.chromophores
+        if colour is not None:
+            print(f"melanin index {np.nanmean(colour.melanin):.4f}, haemoglobin index {np.nanmean(colour.haemoglobin):.4f} "
+                  f"(optical density at 523 nm, {colour.reflectance} reflectance)")
+        else:
+            print(f"melanin and haemoglobin: {measurement.source.get('chromophores', 'not measured: no acquisition')}")
+        print(f"report: {(Path(args.out) / 'report.html').resolve()}")
         print(f"wrote {Path(args.out).resolve()} in {time.perf_counter() - started:.1f} s")
     return 0
 
