@@ -22,7 +22,9 @@ pore's depth, connected to it, covers at most twice its opening (looked for with
 ``max_opening_um`` of it). Where furrows of the microrelief network
 meet, their short segments are filled from every direction and look like pits; V joins them
 to the network's other furrows, and they are rejected. A real pore at a furrow junction is
-rejected with them (a limit).
+rejected with them (a limit). A pore touching the field's edge or the mask is not counted
+(its opening is not seen whole; counts then stay the same between visits that see the field
+differently cut).
 
 Measures per pore: area of the opening (mm^2, pixels counted), equivalent diameter (um),
 depth (the deepest P, um), mean depth (um) and volume below the rim (sum of P times the pixel
@@ -129,6 +131,7 @@ def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_
                   min_depth_um=DEFAULT_PORE_MIN_DEPTH_UM, edge_um=DEFAULT_PORE_EDGE_UM, min_roundness=DEFAULT_MIN_ROUNDNESS) -> PoreMeasures:
     """Find and measure the pores of ``height`` (micrometres; see the module notes for the
     method and every option)."""
+    import scipy.ndimage
     import skimage.filters
     import skimage.measure
 
@@ -137,6 +140,9 @@ def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_
     finite = np.nan_to_num(depth, nan=0.0)
     candidates = skimage.measure.label(skimage.filters.apply_hysteresis_threshold(finite, edge_um, min_depth_um), connectivity=2)
     valley = np.nan_to_num(valley, nan=0.0)
+    outside = ~height.mask
+    outside = np.pad(outside, 1, constant_values=True)  # the frame counts as outside
+    border = scipy.ndimage.binary_dilation(outside, structure=np.ones((3, 3), bool))[1:-1, 1:-1]
     margin = (int(np.ceil(max_opening_um / dy)), int(np.ceil(max_opening_um / dx)))
     labels = np.zeros(candidates.shape, dtype=np.int32)
     pores = []
@@ -144,6 +150,8 @@ def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_
     for region in skimage.measure.regionprops(candidates, intensity_image=finite):
         diameter = 2.0 * np.sqrt(region.area * dx * dy / np.pi)
         roundness = region.axis_minor_length / region.axis_major_length if region.axis_major_length > 0 else 1.0
+        if border[region.slice][region.image].any():  # cut by the field's edge or the mask: not seen whole
+            continue
         if not (min_opening_um <= diameter <= max_opening_um and roundness >= min_roundness
                 and _stands_alone(region, valley, VALLEY_LEVEL * region.intensity_max, margin)):
             continue

@@ -11,13 +11,7 @@ import tifffile
 from skintopo.acquisition import load_acquisition, read_image, write_acquisition
 from skintopo.errors import AcquisitionError, SkinTopoError
 from skintopo.formats import write_png
-
-
-def edit_manifest(folder, change):
-    path = folder / "acquisition.json"
-    manifest = json.loads(path.read_text())
-    change(manifest)
-    path.write_text(json.dumps(manifest))
+from tests.helpers.manifests import edit_manifest
 
 
 def test_missing_band_requested(lambertian_acquisition):

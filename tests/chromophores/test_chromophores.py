@@ -1,7 +1,6 @@
 """Melanin and haemoglobin indices: the model against published spectra, a second forward
 model, published skin reflectance, the simulator with its topography effects, bad input."""
 
-import json
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from skintopo.errors import AcquisitionError, SkinTopoError
 from skintopo.normals import photometric_stereo
 from skintopo.synth import RenderSettings, make_surface, preset_spec, simulate_acquisition
 from skintopo.synth.render import Effects, Pigmentation
+from tests.helpers.manifests import edit_manifest
 
 WAVELENGTHS = {"red": 625.0, "green": 523.0, "blue": 462.0}
 
@@ -159,13 +159,6 @@ def _capture(tmp_path, **options):
     return folder
 
 
-def _edit_manifest(folder, change):
-    path = folder / "acquisition.json"
-    manifest = json.loads(path.read_text())
-    change(manifest)
-    path.write_text(json.dumps(manifest))
-
-
 def test_a_white_reference_makes_the_reflectance_absolute(tmp_path):
     """The red band's intensities recorded 2x too high (its albedo comes out half): without the
     reference the melanin index is far off (relative reflectance); with the white reference
@@ -188,11 +181,11 @@ def test_a_white_reference_makes_the_reflectance_absolute(tmp_path):
         for entry in manifest["images"]:
             if entry["band"] == "red":
                 entry["intensity"] *= 2
-    _edit_manifest(folder, doubled_red)
+    edit_manifest(folder, doubled_red)
     wrong = load_acquisition(folder)
     assert maps(wrong).scale["red"] == pytest.approx(2.0, rel=0.01)
     assert np.nanmean(maps(wrong).melanin) == pytest.approx(np.nanmean(truth.melanin), rel=0.01)
-    _edit_manifest(folder, lambda manifest: manifest.pop("white_reference"))
+    edit_manifest(folder, lambda manifest: manifest.pop("white_reference"))
     relative = maps(load_acquisition(folder))
     assert relative.reflectance == "relative" and abs(np.nanmean(relative.melanin) / np.nanmean(truth.melanin) - 1) > 0.3
 
@@ -204,7 +197,7 @@ def test_bad_white_references_are_refused_naming_the_file(tmp_path):
                            ({"box_px": [0, 0, 12, 12], "reflectance": {"red": 0.9}}, "one per band"),
                            ({"box_px": [120, 0, 140, 12], "reflectance": 0.9}, r"box \[120, 0, 140, 12\] reaches outside the 128 x 128"),
                            ({"box": [0, 0, 12, 12], "reflectance": 0.9}, r"unknown keys \['box'\]")]:
-        _edit_manifest(folder, lambda manifest: manifest.update(white_reference=value))
+        edit_manifest(folder, lambda manifest: manifest.update(white_reference=value))
         with pytest.raises(AcquisitionError, match=message) as raised:
             load_acquisition(folder)
         assert "acquisition.json" in str(raised.value)

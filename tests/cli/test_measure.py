@@ -66,14 +66,22 @@ def test_measure_acquisition_writes_everything_and_the_report_renders(tmp_path):
     assert main(["synth", "-o", str(acquisition), "--preset", "forehead-moderate", "--size", "160", "-q"]) == 0
     out = tmp_path / "out"
     assert main(["measure", str(acquisition), "-o", str(out), "-q", "--region", "centre=800,800,2400,2400"]) == 0
-    for name in ("parameters.json", "parameters.csv", "wrinkles.json", "wrinkles.csv", "height.x3p", "summary.json", "report.html"):
+    for name in ("parameters.json", "parameters.csv", "wrinkles.json", "wrinkles.csv", "height.x3p", "summary.json", "report.html",
+                 "pores.json", "pores.csv", "pores.png", "chromophores.json", "melanin.npy", "haemoglobin.npy"):
         assert (out / name).exists(), name
     summary = json.loads((out / "summary.json").read_text())
     assert summary["source"]["height"] == "spectral correction (paper)"
+    # no white reference: relative reflectance, said in the summary and the report; the region has its own statistics
+    assert summary["source"]["chromophores"] == "melanin and haemoglobin indices (relative reflectance)"
+    melanin = np.load(out / "melanin.npy")
+    assert summary["chromophores"]["field"]["melanin"]["mean"] == pytest.approx(float(np.nanmean(melanin)), rel=1e-6)
+    assert summary["chromophores"]["centre"]["melanin"]["pixels"] == 80 * 80
+    assert summary["pore_totals"]["count"] == len(json.loads((out / "pores.json").read_text())["pores"])
     centre_sa = next(p["value"] for p in json.loads((out / "parameters.json").read_text())["parameters"]
                      if p["region"] == "centre" and p["name"] == "Sa")
     page = (out / "report.html").read_text()
     assert "<h2>Regions</h2>" in page and "centre = 800, 800, 2400, 2400" in page and f"{centre_sa:.5g}" in page
+    assert "<h2>Pores</h2>" in page and "Colour: melanin and haemoglobin" in page and "Reflectance relative" in page
     if browser.CHROMIUM is None:
         pytest.skip("no chromium on this machine (Debian package 'chromium'): report not rendered")
     screenshot = tmp_path / "shot.png"

@@ -10,13 +10,7 @@ from skintopo.formats import write_png
 from skintopo.heightmap import HeightMap
 from skintopo.normals import angular_error_degrees
 from tests.helpers.analytic import rms_error_after_offset
-
-
-def edit_manifest(folder, change):
-    path = folder / "acquisition.json"
-    manifest = json.loads(path.read_text())
-    change(manifest)
-    path.write_text(json.dumps(manifest))
+from tests.helpers.manifests import edit_manifest
 
 
 def run_reconstruct(folder, out, capsys, *extra):

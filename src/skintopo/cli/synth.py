@@ -12,8 +12,16 @@ from skintopo.errors import SkinTopoError
 
 def run(args):
     from skintopo.outputs import check_output_folder
-    from skintopo.synth import (PRESETS, Effects, another_visit, default_settings, optics_profile, preset_spec, simulate_to_folder,
-                                write_calibration_target)
+    from skintopo.synth import (
+        PRESETS,
+        Effects,
+        another_visit,
+        default_settings,
+        optics_profile,
+        preset_spec,
+        simulate_to_folder,
+        write_calibration_target,
+    )
     from skintopo.synth.render import Pigmentation
     from skintopo.synth.surfaces import place_pores
 
