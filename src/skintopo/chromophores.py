@@ -110,15 +110,19 @@ def forward_reflectance(melanin, haemoglobin, baseline, saturation=OXYGEN_SATURA
 def chromophore_indices(reflectance, saturation=OXYGEN_SATURATION):
     """(melanin, haemoglobin, baseline) per pixel from ``reflectance`` (dict band -> array,
     red, green and blue, values in (0, 1]): the exact solution of the 3 x 3 model of the
-    module notes; NaN where a band is not finite or not positive."""
+    module notes, in the reflectance's floating type (float32 stays float32); NaN where a
+    band is not finite or not positive."""
     missing = [b for b in RGB if b not in reflectance]
     if missing:
         raise SkinTopoError(f"melanin and haemoglobin need red, green and blue reflectance; missing {missing}")
     inverse = np.linalg.inv(spectra_matrix(saturation=saturation))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        density = [np.where(np.asarray(reflectance[b]) > 0, -np.log10(np.asarray(reflectance[b], dtype=np.float64)), np.nan) for b in RGB]
-    melanin, haemoglobin, baseline = (sum(inverse[k, i] * density[i] for i in range(3)) for k in range(3))
-    return melanin, haemoglobin, baseline
+    density = []
+    for band in RGB:
+        values = np.asarray(reflectance[band])
+        values = values if values.dtype.kind == "f" else values.astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            density.append(np.where(values > 0, -np.log10(values), np.nan).astype(values.dtype, copy=False))
+    return tuple(sum(values.dtype.type(inverse[k, i]) * values for i, values in enumerate(density)) for k in range(3))
 
 
 def region_statistics(values, mask=None):
@@ -198,8 +202,8 @@ def _smoothed(values, sigma_px):
     valid = np.isfinite(values)
     if sigma_px <= 0:
         return values
-    total = scipy.ndimage.gaussian_filter(np.where(valid, values, 0.0), sigma_px, mode="nearest")
-    weight = scipy.ndimage.gaussian_filter(valid.astype(np.float64), sigma_px, mode="nearest")
+    total = scipy.ndimage.gaussian_filter(np.where(valid, values, values.dtype.type(0)), sigma_px, mode="nearest")
+    weight = scipy.ndimage.gaussian_filter(valid.astype(values.dtype), sigma_px, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(valid, total / weight, np.nan)
 
@@ -230,8 +234,8 @@ def chromophore_maps(albedo, *, pixel_um=None, smoothing_um=DEFAULT_COLOUR_SMOOT
     else:
         scale = {b: 1.0 for b in RGB}
     reflectance, out_of_range, problems = {}, {}, []
-    for band in RGB:
-        values = np.asarray(albedo[band], dtype=np.float64) * scale[band]
+    for band in RGB:  # float32 (a 20-megapixel field: 80 MB a map)
+        values = np.asarray(albedo[band], dtype=np.float32) * np.float32(scale[band])
         valid = np.isfinite(values)
         outside = valid & ~((values > 0) & (values <= 1))
         fraction = float(outside.sum() / max(int(valid.sum()), 1))
@@ -243,13 +247,13 @@ def chromophore_maps(albedo, *, pixel_um=None, smoothing_um=DEFAULT_COLOUR_SMOOT
                             f"below 0) {how}")
         reflectance[band] = np.where(outside, np.nan, values)
         if smoothing_um and pixel_um:
-            reflectance[band] = 10.0 ** -_smoothed(-np.log10(reflectance[band]), smoothing_um / pixel_um)
+            reflectance[band] = np.float32(10.0) ** -_smoothed(-np.log10(reflectance[band]), smoothing_um / pixel_um)
     if problems:
         hint = ("check the reference's reflectance and box" if reference_albedo is not None
                 else "give a white reference (manifest field 'white_reference') or check the lights' intensities")
         raise SkinTopoError(f"{source}: the reflectance is not physical ({'; '.join(problems)}): {hint}")
     melanin, haemoglobin, baseline = chromophore_indices(reflectance)
-    return ChromophoreMaps(melanin.astype(np.float32), haemoglobin.astype(np.float32), baseline.astype(np.float32),
+    return ChromophoreMaps(melanin, haemoglobin, baseline,
                            "absolute" if reference_albedo is not None else "relative", scale, out_of_range,
                            smoothing_um if (smoothing_um and pixel_um) else 0.0)
 

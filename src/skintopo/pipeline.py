@@ -410,16 +410,27 @@ def acquisition_chromophores(acquisition, bands, options: MeasureOptions = Measu
     haemoglobin maps from the red, green and blue albedo of ``bands`` (band ->
     BandReconstruction, on the height's grid), absolute when the acquisition has a white
     reference; None with the reason when a band is missing."""
-    missing = [b for b in RGB if b not in bands]
+    albedo = {b: bands[b].stereo.albedo for b in RGB if b in bands}
+    return colour_maps(albedo, acquisition.pixel_um, options, white_reference_of(acquisition, options), str(acquisition.source))
+
+
+def white_reference_of(acquisition, options: MeasureOptions = MeasureOptions()):
+    """(the white reference's median albedo per band, its reflectance per band) of
+    ``acquisition``, or None when it has no white reference."""
+    if acquisition.white_reference is None:
+        return None
+    return reference_albedo(acquisition, shadow_fraction=options.reconstruction.shadow_fraction), acquisition.white_reference.reflectance
+
+
+def colour_maps(albedo, pixel_um, options: MeasureOptions = MeasureOptions(), reference=None, source="the acquisition"):
+    """The second half of :func:`acquisition_chromophores`, from the albedo maps (band ->
+    map) and :func:`white_reference_of` (so that the images can be let go first)."""
+    missing = [b for b in RGB if b not in albedo]
     if missing:
         return None, f"not measured: the height was made without the {', '.join(missing)} band(s)"
-    reference = None
-    if acquisition.white_reference is not None:
-        reference = reference_albedo(acquisition, shadow_fraction=options.reconstruction.shadow_fraction)
-    maps = chromophore_maps({b: bands[b].stereo.albedo for b in RGB}, pixel_um=acquisition.pixel_um, smoothing_um=options.colour.smoothing_um,
-                            reference_albedo=reference,
-                            reference_reflectance=None if reference is None else acquisition.white_reference.reflectance,
-                            source=str(acquisition.source))
+    measured, reflectance = reference if reference is not None else (None, None)
+    maps = chromophore_maps(albedo, pixel_um=pixel_um, smoothing_um=options.colour.smoothing_um, reference_albedo=measured,
+                            reference_reflectance=reflectance, source=source)
     return maps, f"melanin and haemoglobin indices ({maps.reflectance} reflectance)"
 
 
@@ -441,11 +452,13 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
         note = made.physics.convergence_note()
         if note and on_note is not None:
             on_note(note)
-    chromophores, source["chromophores"] = acquisition_chromophores(acquisition, made.bands, options)
-    height, albedo = made.height, made.albedo
+    height, albedo, pixel_um, name = made.height, made.albedo, acquisition.pixel_um, str(acquisition.source)
+    band_albedo = {b: made.bands[b].stereo.albedo for b in RGB if b in made.bands}
+    reference = white_reference_of(acquisition, options)
     # the images and the bands' normals and albedos (about 170 bytes a pixel with 16 images)
     # are not needed to measure the height: let them go first
     del acquisition, made
+    chromophores, source["chromophores"] = colour_maps(band_albedo, pixel_um, options, reference, name)
     return measure_height(height, options, albedo=albedo, source=source, progress=step_progress, chromophores=chromophores)
 
 
