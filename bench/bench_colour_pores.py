@@ -106,8 +106,8 @@ def main():
         counts_exact += all(r[2] is not None for r in field_rows) and field_false == 0
     area = np.array([r[2] for r in rows if r[2] is not None])
     depth = np.array([r[3] for r in rows if r[3] is not None])
-    no_pores = {f"{preset} {pixel:g} um": len(measure_pores(make_surface(preset_spec(preset, size_px=size, pixel_um=pixel), seed=seed).height).pores)
-                for preset in PRESETS for pixel, size in ((20.0, 384), (10.0, 512)) for seed in (5, 6)}
+    no_pores = {f"{preset} {pixel:g} um seed {seed}": len(measure_pores(make_surface(preset_spec(preset, size_px=size, pixel_um=pixel), seed=seed).height).pores)
+                for preset in PRESETS for pixel, size in ((20.0, 384), (10.0, 512)) for seed in (5, 6, 7)}
     result["pores"]["geometry"] = {
         "fields": 20, "pores": len(rows), "found": int(area.size), "false": false, "fields_with_exact_count": int(counts_exact),
         "area_error_mean": float(area.mean()), "area_error_worst": float(area[np.argmax(np.abs(area))]),

@@ -43,7 +43,7 @@ DEFAULT_COLOUR_SMOOTHING_UM = 30.0  # chromophores: sigma of the Gaussian on the
 DEFAULT_PORE_MAX_OPENING_UM = 500.0  # pores: largest opening (the closing segment is 1.2 times this)
 DEFAULT_PORE_MIN_OPENING_UM = 40.0  # pores: smallest opening (equivalent diameter at the edge level)
 DEFAULT_PORE_MIN_DEPTH_UM = 10.0  # pores: a pore holds a point this deep below its rim
-DEFAULT_PORE_EDGE_UM = 1.0  # pores: the opening is where the pit is deeper than this
+DEFAULT_PORE_EDGE_UM = 0.5  # pores: the opening is where the pit is deeper than this (0.5 um: no false pore on 24 pore-free fields)
 
 DEFAULT_LEVEL_ORDER = 1  # texture: least-squares plane removed first
 DEFAULT_P = 10.0  # texture: % (ISO 25178-2 default for Vmp, Vmc, Vvc)

@@ -31,7 +31,7 @@ depth (the deepest P, um), mean depth (um) and volume below the rim (sum of P ti
 area, mm^3). Totals: count, count per cm^2 of measured field, mean area, mean depth, total
 volume. The opening is where P exceeds ``edge_um``: for a bowl-shaped (paraboloid) pore of
 depth d that is the disc where its depth exceeds ``edge_um``, whose area is 1 - edge / d of
-the rim's (97.5% for edge 1 um and d 40 um): a documented bias, not corrected, since real
+the rim's (98.75% for edge 0.5 um and d 40 um): a documented bias, not corrected, since real
 profiles differ.
 """
 

@@ -310,6 +310,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
                              e["mean_angular_error_deg"]] for n, e in (evaluations or {}).items()],
         "cross_sections": cross_sections,
         "pores": pores.totals if pores is not None else None,
+        "pore_edge_um": pores.parameters["edge_um"] if pores is not None else None,
         "pore_overlay": pore_overlay_picture(height, pores) if pores is not None else None,
         "pore_rows": [[p.id, p.diameter_um, p.area_mm2, p.depth_um, p.mean_depth_um, p.volume_mm3, p.roundness]
                       for p in (pores.pores if pores is not None else ())],
