@@ -14,7 +14,14 @@ def run(args):
     from skintopo.acquisition import load_acquisition
     from skintopo.evaluation import evaluate_height, wrinkle_max_depths
     from skintopo.outputs import check_output_folder, staged_output_folder, write_json
-    from skintopo.pipeline import HeightOptions, MeasureOptions, acquisition_height, acquisition_summary, measure_height
+    from skintopo.pipeline import (
+        HeightOptions,
+        MeasureOptions,
+        acquisition_chromophores,
+        acquisition_height,
+        acquisition_summary,
+        measure_height,
+    )
     from skintopo.report import cross_section_pngs
     from skintopo.results import run_header, write_measurement
     from skintopo.segmentation import segmentation_quality
@@ -45,7 +52,9 @@ def run(args):
             shared.write_band_outputs(result_folder / band, result)
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
                   "height": made.description}
-        measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args))
+        chromophores, source["chromophores"] = acquisition_chromophores(acquisition, made.bands, options)
+        measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args),
+                                     chromophores=chromophores)
         write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
                           evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels))
         segmentation = measurement.segmentation  # the wrinkles of the report (the correction segments its own height)
