@@ -424,13 +424,22 @@ def white_reference_of(acquisition, options: MeasureOptions = MeasureOptions()):
 
 def colour_maps(albedo, pixel_um, options: MeasureOptions = MeasureOptions(), reference=None, source="the acquisition"):
     """The second half of :func:`acquisition_chromophores`, from the albedo maps (band ->
-    map) and :func:`white_reference_of` (so that the images can be let go first)."""
+    map) and :func:`white_reference_of` (so that the images can be let go first). An
+    unphysical reflectance is an error with a white reference (the capture's own reference
+    contradicts it); without one (the albedo in the lights' intensity units) the maps are
+    left out with the reason, and the topography is still measured."""
     missing = [b for b in RGB if b not in albedo]
     if missing:
         return None, f"not measured: the height was made without the {', '.join(missing)} band(s)"
     measured, reflectance = reference if reference is not None else (None, None)
-    maps = chromophore_maps(albedo, pixel_um=pixel_um, smoothing_um=options.colour.smoothing_um, reference_albedo=measured,
-                            reference_reflectance=reflectance, source=source)
+    try:
+        maps = chromophore_maps(albedo, pixel_um=pixel_um, smoothing_um=options.colour.smoothing_um, reference_albedo=measured,
+                                reference_reflectance=reflectance, source=source)
+    except SkinTopoError as error:
+        if reference is not None:  # the capture's own reference says the reflectance is unphysical: an input to fix
+            raise
+        # without a reference the albedo's scale is the lights' intensity units: no colour, but the topography is measured
+        return None, f"not measured: {error}"
     return maps, f"melanin and haemoglobin indices ({maps.reflectance} reflectance)"
 
 

@@ -214,3 +214,26 @@ def test_a_saturated_white_reference_is_refused(tmp_path):
     simulate_to_folder(folder, preset_spec("forehead-low", size_px=128), settings, seed=2)
     with pytest.raises(AcquisitionError, match=r"red_\d+\.png: \d+\.\d% of the white reference box is saturated"):
         load_acquisition(folder)
+
+
+def test_without_a_reference_an_unphysical_albedo_leaves_the_colour_out_not_the_measure(tmp_path):
+    """Lights' intensities recorded 3x too low (albedo up to about 1.8, relative): ``measure``
+    still measures the topography and says why there are no colour maps; with a white
+    reference that contradicts the skin (a box on skin declared white) the capture is refused,
+    naming the band."""
+    from skintopo.pipeline import measure_acquisition
+
+    folder = _capture(tmp_path)
+
+    def third(manifest):
+        manifest.pop("white_reference")
+        for entry in manifest["images"]:
+            entry["intensity"] /= 3
+    edit_manifest(folder, third)
+    measurement = measure_acquisition(folder)
+    assert measurement.chromophores is None and measurement.parameter_rows()
+    assert measurement.source["chromophores"].startswith("not measured:") and "red:" in measurement.source["chromophores"]
+    # a "reference" box put on skin (albedo 0.33-0.6) and declared white (1.0): the skin then reads about 1 and more
+    edit_manifest(folder, lambda m: m.update(white_reference={"box_px": [40, 40, 52, 52], "reflectance": 1.0}))
+    with pytest.raises(SkinTopoError, match=r"the reflectance is not physical \(.*scaled by the white reference"):
+        measure_acquisition(folder)
