@@ -37,13 +37,12 @@ profiles differ.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from skintopo.defaults import DEFAULT_PORE_EDGE_UM, DEFAULT_PORE_MAX_OPENING_UM, DEFAULT_PORE_MIN_DEPTH_UM, DEFAULT_PORE_MIN_OPENING_UM
-from skintopo.filters import line_segment_closing, pixel_spacing
+from skintopo.filters import block_means_of_valid, expanded_blocks, line_segment_closing_extremes, pixel_spacing
 from skintopo.heightmap import HeightMap
 
 PORE_DIRECTIONS_DEG = tuple(range(0, 180, 15))
@@ -100,17 +99,11 @@ class PoreMeasures:
 def pit_and_valley_depth(height: HeightMap, segment_um):
     """(P, V): the pit depth P = min over :data:`PORE_DIRECTIONS_DEG` of (line-segment
     closing - z) and the valley depth V = the max over the same directions (a point in any
-    valley narrower than the segment across), um (module notes); NaN outside the mask. The
-    closings run on two threads and are folded into P and V as they come (two maps held, not
-    twelve: a 20-megapixel field would otherwise hold 1.9 GB of closings)."""
-    pit = np.full(height.shape, np.inf)
-    valley = np.full(height.shape, -np.inf)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        for closed in pool.map(lambda angle: line_segment_closing(height.z, height.spacing, segment_um, angle, height.mask),
-                               PORE_DIRECTIONS_DEG):
-            np.fmin(pit, closed, out=pit)
-            np.fmax(valley, closed, out=valley)
-    return tuple(np.where(height.mask, np.maximum(d - height.z, 0.0), np.nan) for d in (pit, valley))
+    valley narrower than the segment across), um (module notes); NaN outside the mask.
+    (:func:`~skintopo.filters.line_segment_closing_extremes` holds two maps, not twelve: a
+    20-megapixel field would otherwise hold 1.9 GB of closings.)"""
+    extremes = line_segment_closing_extremes(height.z, height.spacing, segment_um, PORE_DIRECTIONS_DEG, height.mask)
+    return tuple(np.where(height.mask, np.maximum(d - height.z, 0.0), np.nan) for d in extremes)
 
 
 def _stands_alone(region, valley, level, margin):
@@ -151,16 +144,11 @@ def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_
                    min_roundness=min_roundness)
     if factor == 1:
         return _measure_pores(height, **options)
-    from skintopo.filters import block_mean
-
-    inside = block_mean(height.mask.astype(float), factor)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = block_mean(np.where(height.mask, height.z, 0.0), factor) / inside
-    binned = _measure_pores(HeightMap(np.where(inside > 0.999, z, np.nan), (dy * factor, dx * factor), inside > 0.999), **options)
-    rows, columns = height.shape
-    labels = np.repeat(np.repeat(binned.labels, factor, axis=0), factor, axis=1)[:rows, :columns] * height.mask
+    z, whole, spacing = block_means_of_valid(height.z, height.mask, height.spacing, factor, min_valid=0.999)
+    binned = _measure_pores(HeightMap(np.where(whole, z, np.nan), spacing, whole), **options)
+    labels = expanded_blocks(binned.labels, height.shape, factor) * height.mask
     pores = tuple(replace(p, row=(p.row + 0.5) * factor - 0.5, column=(p.column + 0.5) * factor - 0.5) for p in binned.pores)
-    depth = np.repeat(np.repeat(binned.pit_depth, factor, axis=0), factor, axis=1)[:rows, :columns]
+    depth = expanded_blocks(binned.pit_depth, height.shape, factor)
     field_mm2 = float(height.mask.sum() * dx * dy * 1e-6)
     return PoreMeasures(pores, labels.astype(np.int32), depth, field_mm2, binned.parameters | {"binning": factor})
 

@@ -54,7 +54,16 @@ from skintopo.defaults import (
     DEFAULT_STRAIGHT_VALLEY_UM,
 )
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, block_mean, coarse_areal_gaussian_filter, gaussian_bandpass, level, line_segment_closings
+from skintopo.filters import (
+    areal_gaussian_filter,
+    block_mean,
+    block_means_of_valid,
+    coarse_areal_gaussian_filter,
+    expanded_blocks,
+    gaussian_bandpass,
+    level,
+    line_segment_closing_extremes,
+)
 from skintopo.heightmap import HeightMap, pixel_spacing
 
 DEFAULT_WIDTH_WINDOW_UM = 1500.0
@@ -192,24 +201,9 @@ def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
     ``STRAIGHT_VALLEY_PIXEL_UM`` (the cost grows as the segment's length in pixels times the
     number of pixels) and repeated back onto the pixels."""
     factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
-    z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
-    closed = np.min(line_segment_closings(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid), axis=0)
-    return _expanded(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
-
-
-def _block_means_of_valid(levelled: HeightMap, valid, factor):
-    """Means of the valid heights over factor x factor blocks, the blocks that are more than
-    half valid, and the blocks' spacing."""
-    weight = block_mean(valid.astype(float), factor)
-    coarse_valid = weight > 0.5
-    z = np.where(coarse_valid, block_mean(np.where(valid, levelled.z, 0.0), factor) / np.where(coarse_valid, weight, 1.0), 0.0)
-    return z, coarse_valid, (levelled.spacing[0] * factor, levelled.spacing[1] * factor)
-
-
-def _expanded(coarse, shape, factor):
-    """A block image back on the pixels: each pixel takes its block's value."""
-    rows, columns = shape
-    return coarse[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
+    z, coarse_valid, spacing = block_means_of_valid(levelled.z, valid, levelled.spacing, factor)
+    closed, _ = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid)
+    return expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
 
 
 def _straight_valleys(levelled, valid, taken, cutoff_um, min_depth_um, min_length_um, window, length_um):
@@ -269,10 +263,10 @@ def _confirmed_against_surrounding_skin(levelled, valid, basins, cores, candidat
     # Both filters are smooth on the scale of lambda_s, so they run on a grid of block means
     # whose pixel is at most lambda_s / 6 (4 samples per Gaussian sigma of the S-filter).
     factor = max(1, int(min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM) / 6 // max(levelled.spacing)))
-    z, coarse_valid, spacing = _block_means_of_valid(levelled, valid, factor)
+    z, coarse_valid, spacing = block_means_of_valid(levelled.z, valid, levelled.spacing, factor)
     skin_share = block_mean(skin.astype(float), factor)
     fine = areal_gaussian_filter(z, spacing, min(short_cutoff_um, REFERENCE_SHORT_CUTOFF_UM), coarse_valid)
-    below = _expanded(skin_level(fine, spacing, coarse_valid & (skin_share > 0.5)) - fine, levelled.shape, factor)
+    below = expanded_blocks(skin_level(fine, spacing, coarse_valid & (skin_share > 0.5)) - fine, levelled.shape, factor)
     return np.array([c for c in candidates if np.median(below[(basins == c) & cores]) >= min_depth_um], dtype=int)
 
 

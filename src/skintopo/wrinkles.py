@@ -60,7 +60,7 @@ from skimage.morphology import skeletonize
 
 from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTOFF_UM, DEFAULT_DEPTH_WINDOW_UM, DEFAULT_FURROW_CLOSING_UM
 from skintopo.errors import SkinTopoError
-from skintopo.filters import areal_gaussian_filter, line_segment_closings, polynomial_form
+from skintopo.filters import areal_gaussian_filter, line_segment_closing_extremes, polynomial_form
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation, margin_pixels, skin_around, skin_level
 
@@ -108,7 +108,7 @@ def plateau_surface(height: HeightMap, furrow_closing_um=DEFAULT_FURROW_CLOSING_
     """The skin without its furrows: the largest of the closings with a level segment of
     ``furrow_closing_um`` at 0, 45, 90 and 135 degrees (see the module notes). Fills the
     wrinkles too where they are narrower than the segment; use it away from them."""
-    return np.max(line_segment_closings(height.z, height.spacing, furrow_closing_um, PLATEAU_DIRECTIONS_DEG, height.mask), axis=0)
+    return line_segment_closing_extremes(height.z, height.spacing, furrow_closing_um, PLATEAU_DIRECTIONS_DEG, height.mask)[1]
 
 
 def centre_lines(skeleton, spacing):

@@ -322,12 +322,12 @@ def place_pores(spec: SurfaceSpec, seed, count, *, radius_um=(25.0, 250.0), dept
     1 um), of furrows (the surface within 3 um of its 0.6 mm line-segment closing, a plateau)
     and of the other pores. The base surface is the same as without pores (they are added
     last). Raises SkinTopoError when the field has no room for that many."""
-    from skintopo.filters import line_segment_closings
+    from skintopo.filters import line_segment_closing_extremes
 
     base = make_surface(spec, seed=seed)
     rng = np.random.default_rng(seed if rng_seed is None else rng_seed)
     pixel = spec.pixel_um
-    closed = np.max(line_segment_closings(base.height.z, base.height.spacing, 600.0, (0, 45, 90, 135)), axis=0)
+    _, closed = line_segment_closing_extremes(base.height.z, base.height.spacing, 600.0, (0, 45, 90, 135))
     free = ((closed - base.height.z) < 3.0) & (base.wrinkle_depth < 1.0)
     x, y = _coordinates(base.height.shape, pixel, spec.shift_um)
     pores = []
