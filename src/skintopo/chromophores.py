@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skintopo.defaults import DEFAULT_COLOUR_SMOOTHING_UM
+from skintopo.defaults import DEFAULT_COLOUR_SMOOTHING_UM, DEFAULT_SHADOW_FRACTION
 from skintopo.errors import SkinTopoError
 
 LED_WAVELENGTHS_NM = {"red": 625.0, "green": 523.0, "blue": 462.0}
@@ -123,6 +123,9 @@ def chromophore_indices(reflectance, saturation=OXYGEN_SATURATION):
         with np.errstate(divide="ignore", invalid="ignore"):
             density.append(np.where(values > 0, -np.log10(values), np.nan).astype(values.dtype, copy=False))
     return tuple(sum(values.dtype.type(inverse[k, i]) * values for i, values in enumerate(density)) for k in range(3))
+
+
+STATISTICS = ("mean", "standard_deviation", "relative_variation")  # of a region, by region_statistics
 
 
 def region_statistics(values, mask=None):
@@ -263,7 +266,6 @@ def reference_albedo(acquisition, *, shadow_fraction=None):
     (:class:`~skintopo.acquisition.WhiteReference`), by photometric stereo of the box alone
     (the target is outside the skin mask). A :class:`SkinTopoError` when the box gives no
     valid albedo in a band."""
-    from skintopo.defaults import DEFAULT_SHADOW_FRACTION
     from skintopo.normals import photometric_stereo
 
     reference = acquisition.white_reference

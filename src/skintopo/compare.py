@@ -113,7 +113,7 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
     # is reported per visit, not as a change)
     totals = {name: _change(float(wrinkles_before.totals[name]), float(wrinkles_after.totals[name])) for name in wrinkles_before.totals
               if not name.endswith("_deg")}
-    from skintopo.chromophores import region_statistics
+    from skintopo.chromophores import STATISTICS, region_statistics
     from skintopo.pores import measure_pores
 
     pores_before, pores_after = (measure_pores(visit, **(pore_options or {})).totals for visit in (before, after))
@@ -126,7 +126,7 @@ def compare_visits(baseline: HeightMap, follow_up: HeightMap, *, allow_scale=Fal
         fixed, moved = np.asarray(baseline_colour[name], float), apply_registration(follow_up_colour[name], registration)
         both = common & np.isfinite(fixed) & np.isfinite(moved)
         statistics = (region_statistics(fixed, both), region_statistics(moved, both))
-        for statistic in ("mean", "standard_deviation", "relative_variation"):
+        for statistic in STATISTICS:
             colour[f"{name}.{statistic}"] = _change(*(float("nan") if s[statistic] is None else s[statistic] for s in statistics))
     aligned_albedo = albedo_residual = None
     if baseline_albedo is not None and follow_up_albedo is not None:

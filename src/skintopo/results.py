@@ -34,8 +34,7 @@ CHANGE_COLUMNS = ("parameter", "baseline", "follow_up", "change", "change_percen
 WRINKLE_TOTAL_UNITS = {"count": "", "total_length_mm": "mm", "mean_depth_um": "um", "area_fraction": ""}
 PORE_TOTAL_UNITS = {"count": "", "count_per_cm2": "1/cm2", "mean_area_mm2": "mm2", "mean_diameter_um": "um", "mean_depth_um": "um",
                     "total_volume_mm3": "mm3"}
-CHROMOPHORE_STATISTICS = ("mean", "standard_deviation", "relative_variation")
-CHROMOPHORE_UNITS = {"mean": "OD", "standard_deviation": "OD", "relative_variation": ""}
+CHROMOPHORE_UNITS = {"mean": "OD", "standard_deviation": "OD", "relative_variation": ""}  # each of chromophores.STATISTICS
 
 
 def run_header(command, **extra):
@@ -144,7 +143,7 @@ def read_measurement_values(folder):
     if (folder / "chromophores.json").is_file():
         for region, maps in _read_json(folder / "chromophores.json")["regions"].items():
             for chromophore, statistics in maps.items():
-                for statistic in CHROMOPHORE_STATISTICS:
+                for statistic in CHROMOPHORE_UNITS:
                     name = f"{chromophore}.{statistic}" if region == "field" else f"{region}.{chromophore}.{statistic}"
                     values[name], units[name] = statistics[statistic], CHROMOPHORE_UNITS[statistic]
     return values, units

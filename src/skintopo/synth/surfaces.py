@@ -315,17 +315,17 @@ def pore_relief(x, y, pore: Pore):
     return z, np.where(inside, 2 * scale * dx, 0.0), np.where(inside, 2 * scale * dy, 0.0), inside
 
 
-def place_pores(spec: SurfaceSpec, seed, count, *, radius_um=(25.0, 250.0), depth_um=(20.0, 120.0), rng_seed=None) -> SurfaceSpec:
+def place_pores(spec: SurfaceSpec, seed, count, *, radius_um=(25.0, 250.0), depth_um=(20.0, 120.0)) -> SurfaceSpec:
     """``spec`` with ``count`` pores placed at random on the plateaus of the surface it makes
     with ``seed``: radius and depth log-uniform in their ranges, each pore's disc (and a ring
-    of half its radius, at least 2 pixels, around it) clear of wrinkles (their relief below
+    of a quarter of its radius, at least 2 pixels, around it) clear of wrinkles (their relief below
     1 um), of furrows (the surface within 3 um of its 0.6 mm line-segment closing, a plateau)
     and of the other pores. The base surface is the same as without pores (they are added
     last). Raises SkinTopoError when the field has no room for that many."""
     from skintopo.filters import line_segment_closing_extremes
 
     base = make_surface(spec, seed=seed)
-    rng = np.random.default_rng(seed if rng_seed is None else rng_seed)
+    rng = np.random.default_rng(seed)
     pixel = spec.pixel_um
     _, closed = line_segment_closing_extremes(base.height.z, base.height.spacing, 600.0, (0, 45, 90, 135))
     free = ((closed - base.height.z) < 3.0) & (base.wrinkle_depth < 1.0)
