@@ -114,7 +114,7 @@ class NearFieldResult:
     def converged(self):
         """True when the last depth change, or the distance still to go that the changes
         imply (:func:`remaining_change_um`), was below the tolerance."""
-        return bool(self.changes_um) and min(self.changes_um[-1], remaining_change_um(self.changes_um)) < self.options["tolerance_um"]
+        return _settled(self.changes_um, self.options["tolerance_um"])
 
     def stereo_on_surface_grid(self):
         """The normals, albedo and residual resampled to the skin-plane grid of
@@ -401,7 +401,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
     ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
     out (for a start close to the solution, where the light vectors change by a fraction of
-    a percent). Stops when :func:`remaining_change_um` is below ``tolerance_um``. Returns
+    a percent). Stops when :func:`_settled`. Returns
     (depth map (NaN outside the mask; where the normals are invalid, integrated over the
     bridged slopes with the DCT integrators, NaN with least squares), g (3, P), residual
     (P,), used (m, P), valid map, changes_um, scales) of the last iteration."""
@@ -447,7 +447,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
         step = np.where(finite, updated - depth, 0.0)
         changes.append(float(np.sqrt(np.sum(step * step) / max(int(finite.sum()), 1)) * 1000))
         depth += step
-        if min(changes[-1], remaining_change_um(changes)) < tolerance_um:
+        if _settled(changes, tolerance_um):
             break
     valid = np.zeros(shape, bool)
     valid[mask] = np.all(np.isfinite(g), axis=0)
@@ -465,6 +465,12 @@ def remaining_change_um(changes_um):
         return float("inf")
     q = changes_um[-1] / changes_um[-2]
     return changes_um[-1] * q / (1 - q)
+
+
+def _settled(changes_um, tolerance_um):
+    """The stopping rule: the last depth change, or the distance still to go that the
+    changes imply (:func:`remaining_change_um`), is below ``tolerance_um``."""
+    return bool(changes_um) and min(changes_um[-1], remaining_change_um(changes_um)) < tolerance_um
 
 
 def _compact(values, mask):
