@@ -178,9 +178,10 @@ class ChromophoreMaps:
         return {name: {"melanin": region_statistics(self.melanin, mask), "haemoglobin": region_statistics(self.haemoglobin, mask)}
                 for name, mask in regions.items()}
 
-    def as_dict(self, regions=None):
+    def as_dict(self, regions=None, statistics=None):
         """JSON-ready: the model, its sources and limits, the reflectance scale and the
-        statistics per region."""
+        statistics per region (``statistics``: those of :meth:`statistics` when the caller
+        has them already)."""
         return {
             "model": "OD_b = M m_b + H h_b + B per pixel, OD = -log10 reflectance; M, H: optical density at 523 nm",
             "wavelengths_nm": dict(LED_WAVELENGTHS_NM),
@@ -194,7 +195,7 @@ class ChromophoreMaps:
             "out_of_range_fraction": self.out_of_range,
             "smoothing_um": self.smoothing_um,
             "units": "optical density (log10) at 523 nm",
-            "regions": self.statistics(regions),
+            "regions": self.statistics(regions) if statistics is None else statistics,
         }
 
 

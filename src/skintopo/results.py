@@ -70,10 +70,10 @@ def write_pore_files(folder, pores):
     write_label_image(folder / "pores.png", pores.labels)
 
 
-def write_chromophore_files(folder, chromophores, regions):
-    """chromophores.json (model, sources, statistics per region), melanin.npy and haemoglobin.npy."""
+def write_chromophore_files(folder, chromophores, statistics):
+    """chromophores.json (model, sources, ``statistics`` per region), melanin.npy and haemoglobin.npy."""
     folder = Path(folder)
-    write_json(folder / "chromophores.json", chromophores.as_dict(regions))
+    write_json(folder / "chromophores.json", chromophores.as_dict(statistics=statistics))
     np.save(folder / "melanin.npy", chromophores.melanin)
     np.save(folder / "haemoglobin.npy", chromophores.haemoglobin)
 
@@ -91,11 +91,11 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     folder = Path(folder)
     rows = measurement.parameter_rows()
     settings = measurement_settings(measurement)
-    regions = measurement.region_masks()
+    colour = None if measurement.chromophores is None else measurement.chromophores.statistics(measurement.region_masks())
     summary = run_header(command, source=measurement.source, options=settings["options"], segmentation=settings["segmentation"],
                          units="um unless stated", wrinkle_totals=measurement.wrinkles.totals,
                          pore_totals=None if measurement.pores is None else measurement.pores.totals,
-                         chromophores=None if measurement.chromophores is None else measurement.chromophores.statistics(regions),
+                         chromophores=colour,
                          evaluation=evaluations)
     write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
     _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
@@ -103,7 +103,7 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     if measurement.pores is not None:
         write_pore_files(folder, measurement.pores)
     if measurement.chromophores is not None:
-        write_chromophore_files(folder, measurement.chromophores, regions)
+        write_chromophore_files(folder, measurement.chromophores, colour)
     measurement.height.save(folder / "height.x3p")
     if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
         np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
@@ -113,7 +113,7 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
                           regions=report_regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles,
                           evaluations=evaluations, settings=settings, cross_sections=cross_sections, pores=measurement.pores,
-                          chromophores=measurement.chromophores, chromophore_statistics=summary["chromophores"])
+                          chromophores=measurement.chromophores, chromophore_statistics=colour)
     (folder / "report.html").write_text(report, encoding="utf-8")
     return summary
 
