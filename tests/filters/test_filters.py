@@ -291,6 +291,18 @@ def test_gaussian_highpass_keeps_roughness_and_removes_form():
     assert np.abs(masked.z[interior][mask[interior]] - roughness[interior][mask[interior]]).max() < 0.05
 
 
+@pytest.mark.parametrize("factor, offset, shape", [(4, 1.5, (41, 37)), (3, 0.0, (30, 31)), (5, 2.0, (5, 12))])
+def test_bilinear_resize_matches_map_coordinates_at_the_same_points(factor, offset, shape):
+    """The separable resize against scipy's general bilinear interpolation (mode "nearest")
+    at the points (i - offset) / factor, edges included (one coarse row: constant down)."""
+    from skintopo.filters import bilinear_resize
+
+    coarse = np.random.default_rng(2).normal(size=(-(-shape[0] // factor) if shape[0] > 5 else 1, -(-shape[1] // factor)))
+    rows, columns = np.meshgrid((np.arange(shape[0]) - offset) / factor, (np.arange(shape[1]) - offset) / factor, indexing="ij")
+    expected = scipy.ndimage.map_coordinates(coarse, [rows, columns], order=1, mode="nearest")
+    np.testing.assert_allclose(bilinear_resize(coarse, shape, factor, offset), expected, rtol=0, atol=1e-12)
+
+
 def test_block_mean_against_a_padded_reshape():
     rng = np.random.default_rng(7)
     for shape, factor in (((64, 48), 4), ((67, 45), 4), ((10, 9), 3), ((5, 5), 1)):

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
 from skintopo.height import (
@@ -9,6 +10,7 @@ from skintopo.height import (
     dct_poisson,
     edge_differences,
     fill_from_nearest,
+    nearest_valid_index,
     frankot_chellappa,
     height_normals,
     integrate_normals,
@@ -182,6 +184,24 @@ def test_height_normals_of_a_plane():
     z = 0.3 * c * dx + 0.2 * (-r * dy)
     expected = np.array([-0.3, -0.2, 1.0]) / np.linalg.norm([-0.3, -0.2, 1.0])
     np.testing.assert_allclose(height_normals(z, (dy, dx)), np.broadcast_to(expected, (rows, columns, 3)), atol=1e-12)
+
+
+@pytest.mark.parametrize("share", [0.0005, 0.01])
+def test_nearest_valid_index_finds_pixels_as_near_as_the_distance_transform(share):
+    """Sparse holes (the k-d tree among the valid pixels touching a hole) and denser ones
+    (the distance transform): every hole pixel's chosen pixel is valid and exactly as near
+    as the Euclidean distance transform's (ties may differ); valid pixels point to
+    themselves."""
+    rng = np.random.default_rng(5)
+    valid = rng.random((300, 400)) > share
+    valid[100:112, 50:90] = False  # a larger hole too
+    valid[0:4, 0:4] = False  # in a corner
+    rows, columns = nearest_valid_index(valid)
+    reference = scipy.ndimage.distance_transform_edt(~valid, return_distances=True)
+    r, c = np.indices(valid.shape)
+    np.testing.assert_allclose(np.hypot(rows - r, columns - c), reference, atol=1e-12)
+    assert valid[rows, columns].all()
+    assert (rows[valid] == r[valid]).all() and (columns[valid] == c[valid]).all()
 
 
 def test_fill_from_nearest_bridges_holes_with_the_nearest_valid_value():

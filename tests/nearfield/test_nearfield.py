@@ -8,7 +8,7 @@ import pytest
 from skintopo.device import paper_device
 from skintopo.filters import polynomial_form, sphere_fit
 from skintopo.height import integrate_normals
-from skintopo.nearfield import near_field_photometric_stereo, remaining_change_um
+from skintopo.nearfield import near_field_photometric_stereo, per_pixel_photometric_stereo, remaining_change_um
 from skintopo.normals import photometric_stereo
 from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
 from skintopo.synth.nearfield import camera_grid_surface, device_surface, simulate_device_acquisition
@@ -83,6 +83,41 @@ def test_remaining_change_is_the_distance_to_the_fixed_point_of_a_linear_contrac
     assert remaining_change_um(changes) == pytest.approx(abs(c / (1 - q) - x), rel=1e-9)
     assert remaining_change_um(changes[:1]) == np.inf
     assert remaining_change_um([1.0, 2.0]) == np.inf
+
+
+def test_remaining_change_uses_the_prior_contraction_until_the_changes_give_one():
+    """With one change the bound needs the contraction from elsewhere (another band of the
+    same capture); with two, the changes' own."""
+    assert remaining_change_um([2.0], prior=0.2) == pytest.approx(2.0 * 0.2 / 0.8)
+    assert remaining_change_um([2.0, 0.1], prior=0.9) == pytest.approx(0.1 * 0.05 / 0.95)
+    assert remaining_change_um([2.0], prior=None) == np.inf
+
+
+def test_per_pixel_solve_recovers_rho_n_under_the_leds_and_leaves_shadows_out():
+    """Intensities made with the LED model's own light vectors (Led.light_vectors, NumPy) at
+    random points on a 150 mm plane, for known albedo x normal, LEDs of four angular
+    fall-offs: the compiled per-pixel solve gives g back; an observation darkened to a
+    shadow is left out (and g is still exact from the other three); a pixel with two lit
+    LEDs is invalid."""
+    device = paper_device(size_px=64)
+    device = replace(device, leds=tuple(replace(led, mu=mu) for led, mu in zip(device.leds, (1.0, 1.6, 0.0, 2.3))))
+    rng = np.random.default_rng(3)
+    count = 500
+    rays = np.stack([rng.uniform(-0.2, 0.2, count), rng.uniform(-0.2, 0.2, count), -np.ones(count)])
+    depth = rng.uniform(145.0, 155.0, count)
+    normals = np.stack([rng.uniform(-0.3, 0.3, count), rng.uniform(-0.3, 0.3, count), np.ones(count)])
+    g_true = 0.6 * normals / np.linalg.norm(normals, axis=0)
+    lights = np.stack([led.light_vectors(depth * rays, "green") for led in device.leds]) * device.working_distance_mm**2
+    intensity = np.einsum("mkp,kp->mp", lights, g_true)
+    intensity[1, :100] *= 0.01  # shadowed
+    intensity[:2, 100:110] = 0.0  # only two lit
+    g, residual, used = per_pixel_photometric_stereo(intensity, rays, depth, device, "green")
+    fine = np.ones(count, bool)
+    fine[100:110] = False
+    np.testing.assert_allclose(g[:, fine], g_true[:, fine], rtol=1e-4, atol=1e-6)
+    assert not used[1, :100].any() and used[:, 110:].all()
+    assert np.isnan(g[:, 100:110]).all()
+    assert np.nanmax(residual[fine]) < 1e-8
 
 
 def test_working_distance_scale_is_off_by_the_depth_the_forehead_falls_away():
