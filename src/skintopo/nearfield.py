@@ -200,9 +200,11 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
         per_pixel_solve(intensity[:, part], rays[:, part], depth[part], positions, directions, mu, phi, float(shadow_fraction),
                         (used_now if used is None else used)[:, part], used is not None, g[:, part], residual[part], used_now[:, part])
 
-    parts = [slice(0, count)] if count < CHUNK else [slice(0, count // 2), slice(count // 2, count)]
-    with ThreadPoolExecutor(max_workers=len(parts)) as pool:
-        list(pool.map(solve, parts))
+    if count < CHUNK:  # one thread: a pool costs more than it saves
+        solve(slice(0, count))
+    else:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            list(pool.map(solve, [slice(0, count // 2), slice(count // 2, count)]))
     return g, residual, used_now
 
 

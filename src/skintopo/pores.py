@@ -173,11 +173,12 @@ def _measure_pores(height: HeightMap, *, max_opening_um, min_opening_um, min_dep
     pixel_mm2 = dx * dy * 1e-6
     for region in skimage.measure.regionprops(candidates, intensity_image=finite):
         diameter = 2.0 * np.sqrt(region.area * dx * dy / np.pi)
+        if not min_opening_um <= diameter <= max_opening_um:  # first: the area is cheap, the axes are not (most candidates are specks)
+            continue
         roundness = region.axis_minor_length / region.axis_major_length if region.axis_major_length > 0 else 1.0
         if border[region.slice][region.image].any():  # cut by the field's edge or the mask: not seen whole
             continue
-        if not (min_opening_um <= diameter <= max_opening_um and roundness >= min_roundness
-                and _stands_alone(region, valley, VALLEY_LEVEL * region.intensity_max, margin)):
+        if not (roundness >= min_roundness and _stands_alone(region, valley, VALLEY_LEVEL * region.intensity_max, margin)):
             continue
         values = finite[region.slice][region.image]
         labels[region.slice][region.image] = len(pores) + 1
