@@ -23,7 +23,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
 def _weighted_fit(s, values, weights, g):
     """g = (S^T W S)^-1 S^T W I for one pixel (m LEDs; W diagonal 0/1); NaN where fewer than 3
     observations remain or the used lights do not span 3-D (det below 1e-6 (trace / 3)^3).
@@ -62,7 +62,7 @@ def _weighted_fit(s, values, weights, g):
     return count
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=True, error_model="numpy")
 def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shadow_fraction, used_in, use_given, g_out, residual_out,
                     used_out):
     """Near-field least squares of every pixel of a block (see
@@ -130,7 +130,7 @@ def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shad
         residual_out[p] = misfit / max(energy, 1e-30)
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=True, error_model="numpy")
 def surface_grid_fixed_point(filled, valid, x, y, depth, focal_px, centre_u, centre_v, k1, k2, tolerance_mm, max_iterations, column, row,
                              inside):
     """For each node (x, y) (mm) the depth d where the camera ray meets the height field:
@@ -177,7 +177,7 @@ def surface_grid_fixed_point(filled, valid, x, y, depth, focal_px, centre_u, cen
             inside[n] = False
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=True, error_model="numpy")
 def log_depth_slopes(g, rays, rays_u, rays_v, slope_u, slope_v):
     """The slopes of log depth from g = rho n (:mod:`skintopo.nearfield`, step 3):
     d(log d)/du = -(g . w_u) / (g . w) along columns, and the negative of d(log d)/dv along
