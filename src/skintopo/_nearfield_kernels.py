@@ -131,41 +131,36 @@ def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shad
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def surface_grid_fixed_point(filled, valid, x, y, depth, focal_px, centre_u, centre_v, k1, k2, tolerance_mm, max_iterations, column, row,
+def surface_grid_fixed_point(filled, valid, x, y, depth, focal_px, centre_u, centre_v, k1, k2, tolerance_px, max_iterations, column, row,
                              inside):
     """For each node (x, y) (mm) the depth d where the camera ray meets the height field:
     (column, row) = project(x, y, -d), d = filled(row, column) read bilinearly (indices
     clamped to the image, as ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``),
-    from the start ``depth``, until d changes by less than ``tolerance_mm``. Updates ``depth``
-    in place; writes the (column, row) d was last read at, or, when ``max_iterations`` ran
-    out, the projection of the last d (as :func:`skintopo.nearfield.resample_to_surface_grid`
-    documents); ``inside``: whether that point lies on the image with the bilinear weight of
-    the ``valid`` pixels above 0.999 (a node read from valid pixels only)."""
+    from the start ``depth``, until the projection of the last d moves by less than
+    ``tolerance_px`` from where d was read. Updates ``depth`` in place; writes the (column,
+    row) d was read at, or, when ``max_iterations`` ran out, the projection of the last d;
+    ``inside``: whether that point lies on the image with the bilinear weight of the
+    ``valid`` pixels above 0.999 (a node read from valid pixels only)."""
     rows, columns = filled.shape
     for n in range(x.size):
         d = depth[n]
-        converged = False
-        u = v = 0.0
-        for _ in range(max_iterations):
+        u = v = read_u = read_v = 0.0
+        for iteration in range(max_iterations + 1):
             xn, yn = x[n] / d, y[n] / d
             r2 = xn * xn + yn * yn
             factor = 1.0 + k1 * r2 + k2 * r2 * r2
             u, v = centre_u + xn * factor * focal_px, centre_v - yn * factor * focal_px
+            if iteration > 0 and abs(u - read_u) < tolerance_px and abs(v - read_v) < tolerance_px:
+                u, v = read_u, read_v  # settled: d is the depth read there
+                break
+            if iteration == max_iterations:
+                break
             cu, cv = min(max(u, 0.0), columns - 1.0), min(max(v, 0.0), rows - 1.0)
             i0, j0 = min(int(cv), rows - 2), min(int(cu), columns - 2)
             tv, tu = cv - i0, cu - j0
-            read = ((1 - tv) * ((1 - tu) * filled[i0, j0] + tu * filled[i0, j0 + 1])
-                    + tv * ((1 - tu) * filled[i0 + 1, j0] + tu * filled[i0 + 1, j0 + 1]))
-            moving = abs(read - d) >= tolerance_mm
-            d = read
-            if not moving:
-                converged = True
-                break
-        if not converged:
-            xn, yn = x[n] / d, y[n] / d
-            r2 = xn * xn + yn * yn
-            factor = 1.0 + k1 * r2 + k2 * r2 * r2
-            u, v = centre_u + xn * factor * focal_px, centre_v - yn * factor * focal_px
+            d = ((1 - tv) * ((1 - tu) * filled[i0, j0] + tu * filled[i0, j0 + 1])
+                 + tv * ((1 - tu) * filled[i0 + 1, j0] + tu * filled[i0 + 1, j0 + 1]))
+            read_u, read_v = u, v
         depth[n], column[n], row[n] = d, u, v
         if 0.0 <= u <= columns - 1.0 and 0.0 <= v <= rows - 1.0:
             i0, j0 = min(int(v), rows - 2), min(int(u), columns - 2)

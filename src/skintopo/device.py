@@ -87,6 +87,12 @@ class Camera:
     principal_point_px: tuple | None = None  # (column, row); None: the image centre
     radial_distortion: tuple = (0.0, 0.0)  # (k1, k2), normalised coordinates
 
+    def __post_init__(self):  # sequences as tuples: a camera is a value (hashable, e.g. a cache key)
+        for name in ("size_px", "principal_point_px", "radial_distortion"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, tuple(value))
+
     @property
     def centre(self):
         """(c_u, c_v): the principal point in pixels (column, row)."""

@@ -338,7 +338,15 @@ def fill_from_nearest(valid, *arrays, index=None):
     if index is None and np.all(valid):
         return tuple(np.asarray(a) for a in arrays)
     index = nearest_valid_index(valid) if index is None else index
-    return tuple(np.asarray(a)[index] for a in arrays)
+    holes = ~np.asarray(valid, dtype=bool)
+    source = tuple(i[holes] for i in index)  # only the holes are gathered: the valid pixels are their own nearest
+
+    def filled(a):
+        out = np.array(a)
+        out[holes] = out[source]
+        return out
+
+    return tuple(filled(a) for a in arrays)
 
 
 INTEGRATORS = dict(zip(INTEGRATOR_NAMES, (dct_poisson, frankot_chellappa, masked_least_squares)))

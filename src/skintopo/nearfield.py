@@ -23,9 +23,17 @@ variational solver):
    distance visible), or by the working distance (``scale="working-distance"``: the median
    depth is the working distance);
 
-until the depth changes by less than ``tolerance_um`` RMS (default 0.1 um), or the distance
-still to go that the last two changes imply (:func:`remaining_change_um`) is below it,
-starting from the plane at the working distance.
+until the depth changes by less than ``tolerance_um`` RMS, or the distance still to go that
+the changes imply (:func:`remaining_change_um`) is below it, starting from the plane at the
+working distance. The default tolerance, 0.25 um RMS of depth, is a sixth of the height error
+the method leaves after form removal on a simulated forehead (1.6 um at 1000 px, diffuse skin):
+a remaining 0.25 um would add at most 0.02 um to it in quadrature (measured: 1.5923 against
+1.5879 um between one and two passes of a band started from another).
+
+The per-pixel solves and the resampling's fixed point are compiled loops
+(:mod:`skintopo._nearfield_kernels`, Numba): 12 images of 1000 x 1000 take about 3.7x the
+distant-light solver (`bench/bench_nearfield.py`); the first call in a process loads them
+(about 0.3 s with Numba's import, after a compilation of a few seconds once per installation).
 
 The result is resampled to a regular grid in the skin plane (:func:`surface_grid`): the
 device's pixel footprint at the working distance, centred on the optical axis, heights in
@@ -39,6 +47,7 @@ here.
 
 from __future__ import annotations
 
+import functools
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -180,7 +189,8 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
     Runs on two threads (the compiled loop releases the GIL; the pixels are independent, so
     the numbers are those of one thread).
     """
-    from skintopo._nearfield_kernels import per_pixel_solve  # here: Numba takes 0.3 s to import
+    # here, not at the top: Numba takes 0.3 s to import
+    from skintopo._nearfield_kernels import per_pixel_solve
 
     intensity, rays = np.asarray(intensity, dtype=np.float32), np.asarray(rays, dtype=np.float32)
     depth = np.ascontiguousarray(depth_mm, dtype=np.float64)
@@ -208,19 +218,27 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
     return g, residual, used_now
 
 
-
-
 def _rays(device: Device):
+    """:func:`_camera_rays` of the device's camera."""
+    return _camera_rays(device.camera)
+
+
+@functools.lru_cache(maxsize=4)
+def _camera_rays(camera):
     """w = (a, b, -1) per pixel and its derivatives along columns and rows, each (3, rows,
     columns); analytic without lens distortion ((1/f, 0, 0) and (0, -1/f, 0), f in pixels),
-    else numerical."""
-    a, b = device.camera.rays()
+    else numerical. Kept for the camera (a band's passes and the next bands reuse them),
+    read-only."""
+    a, b = camera.rays()
     w = np.stack([a, b, -np.ones_like(a)])
-    if any(device.camera.radial_distortion):
+    if any(camera.radial_distortion):
         w_v, w_u = np.gradient(w, axis=(1, 2))
-        return w, w_u, w_v
-    step = 1 / device.camera.focal_length_px
-    return w, np.array([step, 0.0, 0.0])[:, None, None], np.array([0.0, -step, 0.0])[:, None, None]
+    else:
+        step = 1 / camera.focal_length_px
+        w_u, w_v = np.array([step, 0.0, 0.0])[:, None, None], np.array([0.0, -step, 0.0])[:, None, None]
+    for array in (w, w_u, w_v):
+        array.setflags(write=False)
+    return w, w_u, w_v
 
 
 def surface_grid(device: Device):
@@ -233,18 +251,19 @@ def surface_grid(device: Device):
     return np.broadcast_arrays(x[None, :], y[:, None])
 
 
-def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_iterations=60, start=None, valid=None):
+def resample_to_surface_grid(depth_mm, device: Device, tolerance_px=1e-3, max_iterations=60, start=None, valid=None):
     """Heights (um, toward the camera, 0 at the working distance) on :func:`surface_grid`
     from per-pixel depths, and the (row, column) of the image each node was read at.
 
     Each node (x, y) is found on the image by the fixed point
     (column, row) = project(x, y, -d(column, row)), d read by bilinear interpolation; it
     contracts by about the surface slope times the ray's obliquity per step, and each node
-    is iterated alone (a compiled loop) until its own depth changes by less than
-    ``tolerance_mm`` (0.1 um, which moves a node by under 1e-3 pixel on the image; a few nodes
-    on the steepest microrelief walls contract by about 0.7 a step). It is run first on every
-    4th node from the median depth and then on all nodes from that start, or, with ``start`` (the (height, sampling) of another band
-    of the same capture), from that band's depths. Nodes outside the image or on invalid
+    is iterated alone (a compiled loop) until the projection of its depth moves by less than
+    ``tolerance_px`` from where that depth was read (1e-3 pixel: the height read is then that
+    of a point within 0.07 um of the node at 65 um pixels; a few nodes on the steepest
+    microrelief walls contract by about 0.7 a step). It is run first on every 4th node from
+    the median depth and then on all nodes from that start, or, with ``start`` (the (height,
+    sampling) of another band of the same capture), from that band's depths. Nodes outside the image or on invalid
     pixels are masked: the pixels where ``depth_mm`` is NaN, or outside ``valid`` when it is
     given (``depth_mm`` may then hold bridged depths there, read near the valid pixels'
     edge instead of the nearest valid depth).
@@ -258,7 +277,8 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
     valid_share = valid.astype(np.float64)
 
     def fixed_point(x, y, depth):
-        from skintopo._nearfield_kernels import surface_grid_fixed_point  # here: Numba takes 0.3 s to import
+        # here, not at the top: Numba takes 0.3 s to import
+        from skintopo._nearfield_kernels import surface_grid_fixed_point
 
         shape = x.shape
         x, y = np.ascontiguousarray(x, dtype=np.float64).ravel(), np.ascontiguousarray(y, dtype=np.float64).ravel()
@@ -269,7 +289,7 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_mm=1e-4, max_it
 
         def solve(part):
             surface_grid_fixed_point(filled, valid_share, x[part], y[part], depth[part], camera.focal_length_px, *camera.centre,
-                                     *camera.radial_distortion, tolerance_mm, max_iterations, column[part], row[part], inside[part])
+                                     *camera.radial_distortion, tolerance_px, max_iterations, column[part], row[part], inside[part])
 
         with ThreadPoolExecutor(max_workers=2) as pool:  # the compiled loop releases the GIL
             list(pool.map(solve, [slice(0, half), slice(half, depth.size)]))
@@ -314,9 +334,10 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         Another band's result for the same capture: its depth is the starting point and its
         scale (median depth) is kept, and the binned stage is skipped. The bands see the same
         skin, whose depth they differ on by micrometres where the light vectors change over
-        millimetres; the alternation still runs to this band's own fixed point (measured at
-        1000 px: about 0.6 s per band instead of 1.1; after form removal the error is that of a
-        start from scratch, 3.47 against 3.36 um at 256 px, tests/nearfield/test_nearfield.py).
+        millimetres; the alternation still runs to this band's own fixed point, its distance
+        to it bounded with the start band's contraction factor while this band has one change
+        only (one pass at 1000 px, about 0.18 s; after form removal the error is that of a
+        start from scratch, tests/nearfield/test_nearfield.py).
     tolerance_um, max_iterations
         Stop when the RMS depth change, or the distance to the fixed point it implies
         (:func:`remaining_change_um`), is below ``tolerance_um``.
@@ -385,7 +406,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     (depth map (NaN outside the mask; where the normals are invalid, integrated over the
     bridged slopes with the DCT integrators, NaN with least squares), g (3, P), residual
     (P,), used (m, P), valid map, changes_um, scales) of the last iteration."""
-    from skintopo._nearfield_kernels import log_depth_slopes  # here: Numba takes 0.3 s to import
+    # here, not at the top: Numba takes 0.3 s to import
+    from skintopo._nearfield_kernels import log_depth_slopes
 
     shape = mask.shape
     w, w_u, w_v = _rays(device)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import csv
 import json
 import platform
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -97,24 +98,28 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
                          pore_totals=None if measurement.pores is None else measurement.pores.totals,
                          chromophores=colour,
                          evaluation=evaluations)
-    write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
-    _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
-    write_wrinkle_files(folder, measurement.wrinkles, measurement.segmentation)
-    if measurement.pores is not None:
-        write_pore_files(folder, measurement.pores)
-    if measurement.chromophores is not None:
-        write_chromophore_files(folder, measurement.chromophores, colour)
-    measurement.height.save(folder / "height.x3p")
-    if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
-        np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
-    write_json(folder / "summary.json", summary)
-    boxes = dict(measurement.options.regions)
-    report_regions = {name: (boxes[name], values) for name, values in measurement.texture.items() if name != "field"}
-    report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
-                          regions=report_regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles,
-                          evaluations=evaluations, settings=settings, cross_sections=cross_sections, pores=measurement.pores,
-                          chromophores=measurement.chromophores, chromophore_statistics=colour)
-    (folder / "report.html").write_text(report, encoding="utf-8")
+    # the height map's x3p (zlib compression, 0.2 s at 1024 x 1024, without the GIL) is written
+    # beside the other files and the report
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        saving = pool.submit(measurement.height.save, folder / "height.x3p")
+        write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
+        _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
+        write_wrinkle_files(folder, measurement.wrinkles, measurement.segmentation)
+        if measurement.pores is not None:
+            write_pore_files(folder, measurement.pores)
+        if measurement.chromophores is not None:
+            write_chromophore_files(folder, measurement.chromophores, colour)
+        if measurement.albedo is not None:  # kept so that `compare` can carry it to the baseline grid
+            np.save(folder / "albedo.npy", np.asarray(measurement.albedo, dtype=np.float32))
+        write_json(folder / "summary.json", summary)
+        boxes = dict(measurement.options.regions)
+        report_regions = {name: (boxes[name], values) for name, values in measurement.texture.items() if name != "field"}
+        report = build_report(title=title, height=measurement.height, albedo=measurement.albedo, parameters=measurement.texture["field"],
+                              regions=report_regions, fractal_results=measurement.fractal_results, wrinkles=measurement.wrinkles,
+                              evaluations=evaluations, settings=settings, cross_sections=cross_sections, pores=measurement.pores,
+                              chromophores=measurement.chromophores, chromophore_statistics=colour)
+        (folder / "report.html").write_text(report, encoding="utf-8")
+        saving.result()
     return summary
 
 

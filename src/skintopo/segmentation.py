@@ -142,7 +142,10 @@ def segment_wrinkles(
     labels = label(regions)
     keep = np.zeros(labels.max() + 1, dtype=bool)
     for region in regionprops(labels):
-        keep[region.label] = region.axis_major_length * pixel >= min_length_um
+        # The major axis 4 sqrt(lambda_1) is at most twice the box's diagonal (a variance is at
+        # most a quarter of the squared range, Popoviciu): the many specks skip the inertia tensor.
+        if 2 * np.hypot(*(side.stop - side.start - 1 for side in region.slice)) * pixel >= min_length_um:
+            keep[region.label] = region.axis_major_length * pixel >= min_length_um
     kept = keep[labels] & regions
     # Full extent: the watershed basins (down to the background level). Basins that touch
     # belong to one wrinkle (a furrow crossing can split its seed in two): each connected

@@ -6,6 +6,7 @@ import scipy.ndimage
 import scipy.special
 import scipy.stats
 
+from skintopo import filters
 from skintopo.errors import SkinTopoError
 from skintopo.filters import (
     areal_gaussian_filter,
@@ -48,7 +49,11 @@ def test_coarse_gaussian_regression_matches_the_full_filter_where_wrinkles_are_m
     0.3 um of the full filter on a levelled simulated forehead (relief about 8 um RMS) when the
     band's edges fall on block edges, within 1.2 um when they fall inside blocks (the
     documented limit), and never the same as the full filter (it is the coarse grid)."""
-    from skintopo.filters import areal_gaussian_filter, coarse_areal_gaussian_filter, polynomial_form
+    from skintopo.filters import (
+        areal_gaussian_filter,
+        coarse_areal_gaussian_filter,
+        polynomial_form,
+    )
 
     surface = make_surface(preset_spec("forehead-moderate", size_px=400), seed=1)
     for first, bound in ((150, 0.3), (151, 1.2)):  # the second: the blocks at the edges are partly valid
@@ -88,7 +93,7 @@ def test_plane_passes_unchanged_including_edges_and_masks():
         assert np.nanmax(np.abs(low - z)) < 1e-9
 
 
-@pytest.mark.parametrize("sigma_y, masked", [(3.0, False), (3.0, True), (10.0, False), (10.0, True)])
+@pytest.mark.parametrize("sigma_y, masked", [(1.5, False), (1.5, True), (3.0, False), (3.0, True), (10.0, False), (10.0, True)])
 def test_regression_equals_a_weighted_plane_fitted_by_direct_sums(sigma_y, masked):
     """ISO 16610-61 as first-order Gaussian regression: at each point, the plane fitted by
     weighted least squares with the Gaussian weights over the valid points, written here as
@@ -111,7 +116,7 @@ def test_regression_equals_a_weighted_plane_fitted_by_direct_sums(sigma_y, maske
         if not mask[r, c] and not masked:
             continue
         weight = np.exp(-0.5 * (((rows - r) / sigmas[0]) ** 2 + ((columns - c) / sigmas[1]) ** 2)) * mask
-        if sigma_y < 8:  # the direct path's truncated kernels
+        if max(sigmas) < filters._FFT_SIGMA_PX:  # the direct path's truncated kernels
             weight *= (np.abs(rows - r) <= int(4 * sigmas[0] + 0.5)) & (np.abs(columns - c) <= int(4 * sigmas[1] + 0.5))
         design = np.column_stack([np.ones(z.size), (columns - c).ravel(), (rows - r).ravel()]) * np.sqrt(weight.ravel())[:, None]
         plane = np.linalg.lstsq(design, z.ravel() * np.sqrt(weight.ravel()), rcond=None)[0]

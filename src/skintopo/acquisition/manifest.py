@@ -214,7 +214,10 @@ def load_manifest(manifest_path, pixel_um, bands, saturation, bytes_per_pixel=No
 
     images = sum(1 for entry in parsed if entry[0] in wanted)
     cache = ImageCache(problems, None if bytes_per_pixel is None else (manifest_path, images, bytes_per_pixel))
-    dark = cache.get(folder / dark_file) if isinstance(dark_file, str) and dark_file else None
+    dark_path = folder / dark_file if isinstance(dark_file, str) and dark_file else None
+    cache.prefetch([path for path in [dark_path] + [path for band in wanted for p in parsed if p[0] == band for path in (p[1], p[7])]
+                    if path is not None])  # in the order they are read below
+    dark = cache.get(dark_path) if dark_path is not None else None
 
     def linear(image, channel, band):
         """Dark-subtracted, linear, unmixed, one channel; NaN where saturated."""
