@@ -128,6 +128,28 @@ def _stands_alone(region, valley, level, margin):
     return bool(edge_free and component.sum() <= MAX_VALLEY_RATIO * region.area)
 
 
+def _areas_and_roundness(labels):
+    """Per label (index = label; 0 unused): the area in pixels and the roundness, minor over
+    major axis of the ellipse with the same second moments (sqrt(lambda_2 / lambda_1) of the
+    pixel coordinates' covariance, scikit-image's axis_minor_length / axis_major_length; 1
+    for a single pixel), from sums over all labels at once (regionprops computes each
+    region's inertia tensor alone: 0.2 s for the 400 candidate specks of a 1024^2 forehead)."""
+    count = int(labels.max())
+    rows, columns = np.nonzero(labels)
+    ids = labels[rows, columns]
+    area = np.bincount(ids, minlength=count + 1).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_row = np.bincount(ids, rows, count + 1) / area
+        mean_column = np.bincount(ids, columns, count + 1) / area
+        d_row, d_column = rows - mean_row[ids], columns - mean_column[ids]
+        a = np.bincount(ids, d_row * d_row, count + 1) / area
+        c = np.bincount(ids, d_column * d_column, count + 1) / area
+        b = np.bincount(ids, d_row * d_column, count + 1) / area
+        root = np.sqrt(((a - c) / 2) ** 2 + b * b)
+        major, minor = (a + c) / 2 + root, np.maximum((a + c) / 2 - root, 0.0)
+        return area, np.where(major > 0, np.sqrt(minor / major), 1.0)
+
+
 def measure_pores(height: HeightMap, *, max_opening_um=DEFAULT_PORE_MAX_OPENING_UM, min_opening_um=DEFAULT_PORE_MIN_OPENING_UM,
                   min_depth_um=DEFAULT_PORE_MIN_DEPTH_UM, edge_um=DEFAULT_PORE_EDGE_UM, min_roundness=DEFAULT_MIN_ROUNDNESS) -> PoreMeasures:
     """Find and measure the pores of ``height`` (micrometres; see the module notes for the
@@ -171,20 +193,23 @@ def _measure_pores(height: HeightMap, *, max_opening_um, min_opening_um, min_dep
     labels = np.zeros(candidates.shape, dtype=np.int32)
     pores = []
     pixel_mm2 = dx * dy * 1e-6
+    areas, roundness = _areas_and_roundness(candidates)
+    diameters = 2.0 * np.sqrt(areas * dx * dy / np.pi)
+    plausible = (min_opening_um <= diameters) & (diameters <= max_opening_um) & (roundness >= min_roundness)
     for region in skimage.measure.regionprops(candidates, intensity_image=finite):
-        diameter = 2.0 * np.sqrt(region.area * dx * dy / np.pi)
-        if not min_opening_um <= diameter <= max_opening_um:  # first: the area is cheap, the axes are not (most candidates are specks)
+        if not plausible[region.label]:  # most candidates are specks: decided from the arrays above
             continue
-        roundness = region.axis_minor_length / region.axis_major_length if region.axis_major_length > 0 else 1.0
         if border[region.slice][region.image].any():  # cut by the field's edge or the mask: not seen whole
             continue
-        if not (roundness >= min_roundness and _stands_alone(region, valley, VALLEY_LEVEL * region.intensity_max, margin)):
+        if not _stands_alone(region, valley, VALLEY_LEVEL * region.intensity_max, margin):
             continue
+        diameter = float(diameters[region.label])
         values = finite[region.slice][region.image]
         labels[region.slice][region.image] = len(pores) + 1
         row, column = region.centroid
         pores.append(Pore(len(pores) + 1, float(row), float(column), float(region.area * pixel_mm2), float(diameter),
-                          float(values.max()), float(values.mean()), float(values.sum() * pixel_mm2 * 1e-3), float(roundness)))
+                          float(values.max()), float(values.mean()), float(values.sum() * pixel_mm2 * 1e-3),
+                          float(roundness[region.label])))
     settings = {"max_opening_um": max_opening_um, "min_opening_um": min_opening_um, "min_depth_um": min_depth_um, "edge_um": edge_um,
                 "min_roundness": min_roundness, "segment_um": SEGMENT_FACTOR * max_opening_um, "directions_deg": list(PORE_DIRECTIONS_DEG),
                 "binning": 1}
