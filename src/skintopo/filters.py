@@ -391,6 +391,29 @@ def block_mean(image, factor):
     return total / (factor * factor)
 
 
+def ellipse_axes(labels):
+    """Per label of a label image (index = label; 0 unused): the area in pixels and the major
+    and minor axis lengths (pixels) of the ellipse with the same second moments, 4 sqrt(lambda)
+    of the eigenvalues of the pixel coordinates' covariance (scikit-image's
+    ``axis_major_length`` / ``axis_minor_length``), from sums over all labels at once:
+    regionprops computes each region's inertia tensor alone (0.2 s for the 400 candidate
+    pores of a 1024 x 1024 forehead)."""
+    count = int(labels.max())
+    rows, columns = np.nonzero(labels)
+    ids = labels[rows, columns]
+    area = np.bincount(ids, minlength=count + 1).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_row = np.bincount(ids, rows, count + 1) / area
+        mean_column = np.bincount(ids, columns, count + 1) / area
+        d_row, d_column = rows - mean_row[ids], columns - mean_column[ids]
+        a = np.bincount(ids, d_row * d_row, count + 1) / area
+        c = np.bincount(ids, d_column * d_column, count + 1) / area
+        b = np.bincount(ids, d_row * d_column, count + 1) / area
+    root = np.sqrt(((a - c) / 2) ** 2 + b * b)
+    major, minor = (a + c) / 2 + root, np.maximum((a + c) / 2 - root, 0.0)
+    return area, 4 * np.sqrt(np.nan_to_num(major)), 4 * np.sqrt(np.nan_to_num(minor))
+
+
 def line_segment_footprint(length_um, angle_deg, spacing):
     """Digital line segment (boolean footprint, centrally symmetric) of physical length
     ``length_um`` at ``angle_deg`` counter-clockwise from +x (x right, y up; rows run down)."""

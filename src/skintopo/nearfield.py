@@ -218,13 +218,8 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
     return g, residual, used_now
 
 
-def _rays(device: Device):
-    """:func:`_camera_rays` of the device's camera."""
-    return _camera_rays(device.camera)
-
-
 @functools.lru_cache(maxsize=4)
-def _camera_rays(camera):
+def _rays(camera):
     """w = (a, b, -1) per pixel and its derivatives along columns and rows, each (3, rows,
     columns); analytic without lens distortion ((1/f, 0, 0) and (0, -1/f, 0), f in pixels),
     else numerical. Kept for the camera (a band's passes and the next bands reuse them),
@@ -263,10 +258,10 @@ def resample_to_surface_grid(depth_mm, device: Device, tolerance_px=1e-3, max_it
     of a point within 0.07 um of the node at 65 um pixels; a few nodes on the steepest
     microrelief walls contract by about 0.7 a step). It is run first on every 4th node from
     the median depth and then on all nodes from that start, or, with ``start`` (the (height,
-    sampling) of another band of the same capture), from that band's depths. Nodes outside the image or on invalid
-    pixels are masked: the pixels where ``depth_mm`` is NaN, or outside ``valid`` when it is
-    given (``depth_mm`` may then hold bridged depths there, read near the valid pixels'
-    edge instead of the nearest valid depth).
+    sampling) of another band of the same capture), from that band's depths. Nodes outside
+    the image or on invalid pixels are masked: the pixels where ``depth_mm`` is NaN, or
+    outside ``valid`` when it is given (``depth_mm`` may then hold bridged depths there, read
+    near the valid pixels' edge instead of the nearest valid depth).
     """
     x, y = surface_grid(device)
     known = np.isfinite(depth_mm)
@@ -410,7 +405,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     from skintopo._nearfield_kernels import log_depth_slopes
 
     shape = mask.shape
-    w, w_u, w_v = _rays(device)
+    w, w_u, w_v = _rays(device.camera)
     rays = _compact(w, mask).astype(np.float32)
     rays_u, rays_v = (np.ascontiguousarray(_compact(v, mask) if v.ndim == 3 and v.shape[1:] == shape else v.reshape(3, 1), dtype=np.float64)
                       for v in (w_u, w_v))

@@ -59,6 +59,7 @@ from skintopo.filters import (
     block_mean,
     block_means_of_valid,
     coarse_areal_gaussian_filter,
+    ellipse_axes,
     expanded_blocks,
     gaussian_bandpass,
     level,
@@ -140,12 +141,7 @@ def segment_wrinkles(
     window = max(3, int(round(width_window_um / pixel)) | 1)
     regions &= depth >= 0.5 * scipy.ndimage.maximum_filter(np.where(regions, depth, 0.0), size=window)  # half the local maximum
     labels = label(regions)
-    keep = np.zeros(labels.max() + 1, dtype=bool)
-    for region in regionprops(labels):
-        # The major axis 4 sqrt(lambda_1) is at most twice the box's diagonal (a variance is at
-        # most a quarter of the squared range, Popoviciu): the many specks skip the inertia tensor.
-        if 2 * np.hypot(*(side.stop - side.start - 1 for side in region.slice)) * pixel >= min_length_um:
-            keep[region.label] = region.axis_major_length * pixel >= min_length_um
+    keep = ellipse_axes(labels)[1] * pixel >= min_length_um
     kept = keep[labels] & regions
     # Full extent: the watershed basins (down to the background level). Basins that touch
     # belong to one wrinkle (a furrow crossing can split its seed in two): each connected

@@ -323,6 +323,24 @@ def test_bilinear_resize_matches_map_coordinates_at_the_same_points(factor, offs
     np.testing.assert_allclose(bilinear_resize(coarse, shape, factor, offset), expected, rtol=0, atol=1e-12)
 
 
+def test_ellipse_axes_are_scikit_images_for_every_label():
+    """Areas and ellipse axes of all labels at once against regionprops, label by label: a
+    random label image (specks, single pixels, lines, blobs) and an absent label."""
+    import skimage.measure
+
+    from skintopo.filters import ellipse_axes
+
+    rng = np.random.default_rng(4)
+    labels = skimage.measure.label(rng.random((80, 90)) > 0.6)
+    labels[5, 5:40] = labels.max() + 2  # a line, and one label number left unused
+    area, major, minor = ellipse_axes(labels)
+    for region in skimage.measure.regionprops(labels):
+        assert area[region.label] == region.area
+        assert major[region.label] == pytest.approx(region.axis_major_length, rel=1e-9, abs=1e-9)
+        assert minor[region.label] == pytest.approx(region.axis_minor_length, rel=1e-9, abs=1e-9)
+    assert area[labels.max() - 1] == 0 and major[labels.max() - 1] == 0
+
+
 def test_block_mean_against_a_padded_reshape():
     rng = np.random.default_rng(7)
     for shape, factor in (((64, 48), 4), ((67, 45), 4), ((10, 9), 3), ((5, 5), 1)):
