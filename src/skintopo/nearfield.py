@@ -64,7 +64,7 @@ from skintopo.heightmap import HeightMap
 from skintopo.normals import PhotometricStereoResult
 
 SCALES = ("photometric", "working-distance")
-SCALE_SAMPLE_STEP = 2  # the photometric scale is fitted on every 2nd pixel of every 2nd row (of the binned images)
+SCALE_SAMPLE_PIXELS = 16384  # the photometric scale is fitted on a regular subsample of at most about this many pixels
 CHUNK = 1 << 15  # the per-pixel solves run on two threads from this many pixels
 COARSE_PIXELS = 256  # the alternation first converges on images binned to about this many pixels across
 DEFAULT_TOLERANCE_UM = 0.25
@@ -332,7 +332,11 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         millimetres; the alternation still runs to this band's own fixed point, its distance
         to it bounded with the start band's contraction factor while this band has one change
         only (one pass at 1000 px, about 0.18 s; after form removal the error is that of a
-        start from scratch, tests/nearfield/test_nearfield.py).
+        start from scratch, tests/nearfield/test_nearfield.py). The start's shadow decisions
+        are kept (shadows are geometry, which the bands share; saturated observations of this
+        band still left out): 0.22 instead of 0.27 s per band, heights after form removal
+        within 0.01 um of the band's own shadow rule on the simulated forehead, diffuse or with
+        skin optics (bench_nearfield's scenes, 2026-12-03).
     tolerance_um, max_iterations
         Stop when the RMS depth change, or the distance to the fixed point it implies
         (:func:`remaining_change_um`), is below ``tolerance_um``.
@@ -380,7 +384,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         scale = float(np.median(coarse_depth[coarse_valid]))
     bridged, g, residual, used, valid, changes, scales = _alternate(
         images, device, mask, depth, scale, keep_shadows=factor > 1 or start is not None,
-        prior=None if start is None else start.contraction, **settings)
+        prior=None if start is None else start.contraction, shadows=None if start is None else start.used, **settings)
     options["iterations"] = len(changes)
     albedo = np.sqrt(np.sum(g * g, axis=0))
     normals = np.ascontiguousarray(np.moveaxis(_expand(g / albedo, mask), 0, -1))
@@ -391,13 +395,15 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
 
 
 def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator,
-               keep_shadows=False, prior=None):
+               keep_shadows=False, prior=None, shadows=None):
     """The alternation of the module notes from an initial depth map (mm). ``scale`` is
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
     ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
     out (for a start close to the solution, where the light vectors change by a fraction of
-    a percent). Stops when :func:`_settled` (``prior``: the contraction factor it may use
-    before two changes are known). Returns
+    a percent); ``shadows`` (m, rows, columns): observations to use from the start (another
+    band's decisions; the saturated ones of these images still left out). Stops when
+    :func:`_settled` (``prior``: the contraction factor it may use before two changes are
+    known). Returns
     (depth map (NaN outside the mask; where the normals are invalid, integrated over the
     bridged slopes with the DCT integrators, NaN with least squares), g (3, P), residual
     (P,), used (m, P), valid map, changes_um, scales) of the last iteration."""
@@ -411,11 +417,13 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
                       for v in (w_u, w_v))
     intensity = _compact(images, mask)
     sample = np.zeros(shape, bool)
-    sample[::SCALE_SAMPLE_STEP, ::SCALE_SAMPLE_STEP] = True
+    step = int(np.ceil(np.sqrt(mask.size / SCALE_SAMPLE_PIXELS)))  # 2 at 256 x 256, 3 for the binned 333 x 333 of 1000 x 1000
+    sample[::step, ::step] = True
     sample = _compact(sample, mask)
     depth = _compact(depth, mask).astype(np.float64)
     changes, scales = [], []
-    g = used = holes = None
+    g = holes = None
+    used = None if shadows is None else _compact(shadows, mask) & np.isfinite(intensity)
     for _ in range(max_iterations):
         g, residual, used_now = per_pixel_photometric_stereo(intensity, rays, depth, device, band, shadow_fraction=shadow_fraction, used=used)
         if keep_shadows:
