@@ -91,6 +91,9 @@ class NearFieldResult:
         :func:`per_pixel_photometric_stereo` gives it); NaN where invalid.
     used : ndarray of bool (m, rows, columns)
         Which LEDs' observations entered each camera pixel's fit.
+    shadowed : ndarray of bool (m, rows, columns)
+        The observations the shadow rule left out (not the saturated ones): what a band
+        started from this one leaves out too.
     valid : ndarray of bool
         Camera pixels with at least 3 usable LEDs.
     sampling : tuple of ndarray
@@ -110,6 +113,7 @@ class NearFieldResult:
     albedo: np.ndarray
     residual: np.ndarray
     used: np.ndarray
+    shadowed: np.ndarray
     valid: np.ndarray
     sampling: tuple
     changes_um: list
@@ -333,8 +337,8 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         to it bounded with the start band's contraction factor while this band has one change
         only (one pass at 1000 px, about 0.18 s; after form removal the error is that of a
         start from scratch, tests/nearfield/test_nearfield.py). The start's shadow decisions
-        are kept (shadows are geometry, which the bands share; saturated observations of this
-        band still left out): 0.22 instead of 0.27 s per band, heights after form removal
+        are kept (shadows are geometry, which the bands share; this band's own saturated
+        observations are left out, the start's are not): 0.22 instead of 0.27 s per band, heights after form removal
         within 0.01 um of the band's own shadow rule on the simulated forehead, diffuse or with
         skin optics (bench_nearfield's scenes, 2026-12-03).
     tolerance_um, max_iterations
@@ -384,24 +388,26 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         scale = float(np.median(coarse_depth[coarse_valid]))
     bridged, g, residual, used, valid, changes, scales = _alternate(
         images, device, mask, depth, scale, keep_shadows=factor > 1 or start is not None,
-        prior=None if start is None else start.contraction, shadows=None if start is None else start.used, **settings)
+        prior=None if start is None else start.contraction, shadowed=None if start is None else start.shadowed, **settings)
     options["iterations"] = len(changes)
     albedo = np.sqrt(np.sum(g * g, axis=0))
     normals = np.ascontiguousarray(np.moveaxis(_expand(g / albedo, mask), 0, -1))
     used_map = _expand(used, mask, fill=False)
+    shadowed = np.isfinite(images) & mask & ~used_map
     height, sampling = resample_to_surface_grid(bridged, device, valid=valid, start=None if start is None else start.height)
     return NearFieldResult(height, np.where(valid, bridged, np.nan), bridged, normals, _expand(albedo, mask), _expand(residual, mask),
-                           used_map, valid, sampling, changes, scales, time.perf_counter() - started, options)
+                           used_map, shadowed, valid, sampling, changes, scales, time.perf_counter() - started, options)
 
 
 def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tolerance_um, max_iterations, integrator,
-               keep_shadows=False, prior=None, shadows=None):
+               keep_shadows=False, prior=None, shadowed=None):
     """The alternation of the module notes from an initial depth map (mm). ``scale`` is
     ``photometric``, ``working-distance`` or a number: the median depth to keep (mm).
     ``keep_shadows``: the observations the shadow rule left out in the first iteration stay
     out (for a start close to the solution, where the light vectors change by a fraction of
-    a percent); ``shadows`` (m, rows, columns): observations to use from the start (another
-    band's decisions; the saturated ones of these images still left out). Stops when
+    a percent); ``shadowed`` (m, rows, columns): observations left out from the start as
+    shadowed (another band's decisions; the saturated ones of these images are left out
+    too). Stops when
     :func:`_settled` (``prior``: the contraction factor it may use before two changes are
     known). Returns
     (depth map (NaN outside the mask; where the normals are invalid, integrated over the
@@ -423,7 +429,7 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     depth = _compact(depth, mask).astype(np.float64)
     changes, scales = [], []
     g = holes = None
-    used = None if shadows is None else _compact(shadows, mask) & np.isfinite(intensity)
+    used = None if shadowed is None else ~_compact(shadowed, mask) & np.isfinite(intensity)
     for _ in range(max_iterations):
         g, residual, used_now = per_pixel_photometric_stereo(intensity, rays, depth, device, band, shadow_fraction=shadow_fraction, used=used)
         if keep_shadows:

@@ -69,6 +69,25 @@ def test_a_band_started_from_another_bands_depth_reaches_its_own_height():
     assert sphere_fit(started.height)[0] / 1000 == pytest.approx(80.0, rel=5e-3)
 
 
+def test_a_started_band_takes_the_start_bands_shadows_but_not_its_saturation():
+    """Green started from red keeps red's shadow decisions (shadows are geometry) but not
+    red's saturated observations: where red lost an LED to saturation, green still uses it,
+    and green's own saturated observations are left out."""
+    device, _, bands, _, _ = _scene(128)
+    red_images, green_images = bands["red"].copy(), bands["green"].copy()
+    red_images[0, 40:60, 40:60] = np.nan  # saturated in red only
+    green_images[1, 70:80, 70:80] = np.nan  # saturated in green only
+    red_images[2, 90:100, 20:30] *= 0.01  # a shadow red's rule sees
+    red = near_field_photometric_stereo(red_images, device, "red")
+    green = near_field_photometric_stereo(green_images, device, "green", start=red)
+    assert not red.used[0, 40:60, 40:60].any() and not red.shadowed[0, 40:60, 40:60].any()
+    assert green.used[0, 40:60, 40:60].all()
+    assert not green.used[1, 70:80, 70:80].any()
+    lit = np.isfinite(green_images) & ~red.shadowed
+    np.testing.assert_array_equal(green.used, lit)
+    assert red.shadowed[2, 90:100, 20:30].all() and not green.used[2, 90:100, 20:30].any()
+
+
 @pytest.mark.parametrize("q", [0.05, 0.3, 0.8])
 def test_remaining_change_is_the_distance_to_the_fixed_point_of_a_linear_contraction(q):
     """For x_{k+1} = q x_k + c the distance still to go after a step is exactly q / (1 - q)
