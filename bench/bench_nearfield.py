@@ -138,7 +138,7 @@ def main():
 
     # speed: 12 images, three bands; the distant-light time on the ideal scene's images (where
     # it is the right method; on the device's images it meets more shadowed pixels and
-    # switches to the slower masked integrator). Best of 3, the two interleaved (this
+    # switches to the slower masked integrator). Best of 5, the two interleaved (this
     # machine's speed varies by 30-50% between runs).
     def distant_bands():
         for band in RGB:
@@ -150,7 +150,7 @@ def main():
             near_field_photometric_stereo(bands[band], device, band, start=first)
 
     seconds = {"distant": [], "near_field": []}
-    for _ in range(3):
+    for _ in range(5):
         for name, run in (("distant", distant_bands), ("near_field", near_bands)):
             start = time.perf_counter()
             run()

@@ -63,16 +63,16 @@ def _weighted_fit(s, values, weights, g):
 
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
-def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shadow_fraction, used_in, use_given, g_out, residual_out,
-                    used_out):
+def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shadow_fraction, used_in, use_given, normals_out, albedo_out,
+                    residual_out, used_out):
     """Near-field least squares of every pixel of a block (see
     :func:`skintopo.nearfield.per_pixel_photometric_stereo` for the shadow rule and the
     residual, :meth:`skintopo.device.Led.light_vectors` for the light vectors, which are taken
     times ``phi`` (the band's intensity times the squared working distance)).
 
     intensity (m, P); rays (3, P); depth (P,) mm; positions, directions (m, 3); mu, phi (m,);
-    used_in (m, P) bool, read when ``use_given``. Writes g_out (3, P), residual_out (P,) and
-    used_out (m, P)."""
+    used_in (m, P) bool, read when ``use_given``. Writes normals_out (3, P) (g / |g|),
+    albedo_out (P,) (|g|), residual_out (P,) and used_out (m, P)."""
     m, count = intensity.shape
     s = np.empty((m, 3))
     values = np.empty(m)
@@ -126,7 +126,9 @@ def per_pixel_solve(intensity, rays, depth, positions, directions, mu, phi, shad
                 e = values[i] - (s[i, 0] * g[0] + s[i, 1] * g[1] + s[i, 2] * g[2])
                 misfit += e * e
                 energy += values[i] * values[i]
-        g_out[0, p], g_out[1, p], g_out[2, p] = g[0], g[1], g[2]
+        rho = math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+        normals_out[0, p], normals_out[1, p], normals_out[2, p] = g[0] / rho, g[1] / rho, g[2] / rho
+        albedo_out[p] = rho
         residual_out[p] = misfit / max(energy, 1e-30)
 
 
@@ -174,7 +176,8 @@ def surface_grid_fixed_point(filled, valid, x, y, depth, focal_px, centre_u, cen
 
 @numba.njit(nogil=True, cache=True, error_model="numpy")
 def log_depth_slopes(g, rays, rays_u, rays_v, slope_u, slope_v):
-    """The slopes of log depth from g = rho n (:mod:`skintopo.nearfield`, step 3):
+    """The slopes of log depth from the normals g (3, P) (any length: only ratios enter;
+    :mod:`skintopo.nearfield`, step 3):
     d(log d)/du = -(g . w_u) / (g . w) along columns, and the negative of d(log d)/dv along
     rows (+(g . w_v) / (g . w): the integrators take y up). ``rays_u``, ``rays_v``: (3, P), or
     (3, 1) when the same for every pixel (no lens distortion). NaN where g is."""

@@ -182,9 +182,11 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
 
     Returns
     -------
-    g : ndarray (3, P)
-        rho n (the light vectors are taken times D^2, D the working distance, so that rho is
-        in the units of the distant-light albedo); NaN where invalid.
+    normals : ndarray (3, P)
+        n = g / |g|; NaN where invalid.
+    albedo : ndarray (P,)
+        rho = |g| (the light vectors are taken times D^2, D the working distance, so that rho
+        is in the units of the distant-light albedo); NaN where invalid.
     residual : ndarray (P,)
         Sum of squared residuals over the usable observations divided by the sum of squared
         observations (a relative misfit, independent of the albedo).
@@ -206,20 +208,22 @@ def per_pixel_photometric_stereo(intensity, rays, depth_mm, device: Device, band
     mu = np.array([led.mu for led in leds], dtype=np.float64)
     # the light vectors times D^2, so that they are about 1 in size (as the distant lights)
     phi = np.array([led.intensity.get(band, 1.0) for led in leds], dtype=np.float64) * device.working_distance_mm**2
-    g = np.empty((3, count), np.float32)
+    normals = np.empty((3, count), np.float32)
+    albedo = np.empty(count, np.float32)
     residual = np.empty(count, np.float32)
     used_now = np.empty((m, count), bool)
 
     def solve(part):
         per_pixel_solve(intensity[:, part], rays[:, part], depth[part], positions, directions, mu, phi, float(shadow_fraction),
-                        (used_now if used is None else used)[:, part], used is not None, g[:, part], residual[part], used_now[:, part])
+                        (used_now if used is None else used)[:, part], used is not None, normals[:, part], albedo[part], residual[part],
+                        used_now[:, part])
 
     if count < CHUNK:  # one thread: a pool costs more than it saves
         solve(slice(0, count))
     else:
         with ThreadPoolExecutor(max_workers=2) as pool:
             list(pool.map(solve, [slice(0, count // 2), slice(count // 2, count)]))
-    return g, residual, used_now
+    return normals, albedo, residual, used_now
 
 
 @functools.lru_cache(maxsize=4)
@@ -378,7 +382,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         crop = (slice(0, rows * factor), slice(0, columns * factor))
         binned = np.stack([block_mean(image[crop], factor) for image in images]).astype(np.float32)
         coarse_mask = block_mean(mask[crop].astype(float), factor) > 0.999
-        coarse_depth, _, _, _, coarse_valid, coarse_changes, coarse_scales = _alternate(
+        coarse_depth, _, _, _, _, coarse_valid, coarse_changes, coarse_scales = _alternate(
             binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **settings)
         options["binned"] = {"factor": factor, "changes_um": coarse_changes, "scales": coarse_scales}
         known = np.isfinite(coarse_depth)
@@ -386,12 +390,11 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
             raise SkinTopoError("no pixel could be solved: check the images and the device's LED order")
         depth = bilinear_resize(fill_from_nearest(known, coarse_depth)[0], shape, factor, offset=(factor - 1) / 2)  # the blocks' centres
         scale = float(np.median(coarse_depth[coarse_valid]))
-    bridged, g, residual, used, valid, changes, scales = _alternate(
+    bridged, normals, albedo, residual, used, valid, changes, scales = _alternate(
         images, device, mask, depth, scale, keep_shadows=factor > 1 or start is not None,
         prior=None if start is None else start.contraction, shadowed=None if start is None else start.shadowed, **settings)
     options["iterations"] = len(changes)
-    albedo = np.sqrt(np.sum(g * g, axis=0))
-    normals = np.ascontiguousarray(np.moveaxis(_expand(g / albedo, mask), 0, -1))
+    normals = np.moveaxis(_expand(normals, mask), 0, -1)  # (rows, columns, 3), a view when the mask is full
     used_map = _expand(used, mask, fill=False)
     shadowed = np.isfinite(images) & mask & ~used_map
     height, sampling = resample_to_surface_grid(bridged, device, valid=valid, start=None if start is None else start.height)
@@ -407,12 +410,11 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     out (for a start close to the solution, where the light vectors change by a fraction of
     a percent); ``shadowed`` (m, rows, columns): observations left out from the start as
     shadowed (another band's decisions; the saturated ones of these images are left out
-    too). Stops when
-    :func:`_settled` (``prior``: the contraction factor it may use before two changes are
-    known). Returns
-    (depth map (NaN outside the mask; where the normals are invalid, integrated over the
-    bridged slopes with the DCT integrators, NaN with least squares), g (3, P), residual
-    (P,), used (m, P), valid map, changes_um, scales) of the last iteration."""
+    too). Stops when :func:`_settled` (``prior``: the contraction factor it may use before
+    two changes are known). Returns (depth map (NaN outside the mask; where the normals are
+    invalid, integrated over the bridged slopes with the DCT integrators, NaN with least
+    squares), normals (3, P), albedo (P,), residual (P,), used (m, P), valid map, changes_um,
+    scales) of the last iteration."""
     # here, not at the top: Numba takes 0.3 s to import
     from skintopo._nearfield_kernels import log_depth_slopes
 
@@ -428,15 +430,15 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
     sample = _compact(sample, mask)
     depth = _compact(depth, mask).astype(np.float64)
     changes, scales = [], []
-    g = holes = None
+    holes = None
     used = None if shadowed is None else ~_compact(shadowed, mask) & np.isfinite(intensity)
     for _ in range(max_iterations):
-        g, residual, used_now = per_pixel_photometric_stereo(intensity, rays, depth, device, band, shadow_fraction=shadow_fraction, used=used)
+        normals, albedo, residual, used_now = per_pixel_photometric_stereo(intensity, rays, depth, device, band, shadow_fraction=shadow_fraction,
+                                                                           used=used)
         if keep_shadows:
             used = used_now
-        # slopes of log depth; g = rho n, and the ratios do not need n normalised
-        slope_u, slope_v = np.empty(g.shape[1]), np.empty(g.shape[1])
-        log_depth_slopes(g, rays, rays_u, rays_v, slope_u, slope_v)  # integrate_slopes works in x right, y up: q = -d/drow
+        slope_u, slope_v = np.empty(albedo.size), np.empty(albedo.size)  # slopes of log depth
+        log_depth_slopes(normals, rays, rays_u, rays_v, slope_u, slope_v)  # integrate_slopes works in x right, y up: q = -d/drow
         log_du, log_dv = _expand(slope_u, mask), _expand(slope_v, mask)
         solved = np.isfinite(log_du) & np.isfinite(log_dv)
         if integrator == "least-squares":
@@ -465,8 +467,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
         if _settled(changes, tolerance_um, prior):
             break
     valid = np.zeros(shape, bool)
-    valid[mask] = np.all(np.isfinite(g), axis=0)
-    return _expand(depth, mask), g, residual, used_now, valid, changes, scales
+    valid[mask] = np.isfinite(albedo)
+    return _expand(depth, mask), normals, albedo, residual, used_now, valid, changes, scales
 
 
 def contraction(changes_um):
@@ -525,7 +527,7 @@ def _photometric_scale(intensity, rays, shape_only, device, band, shadow_fractio
     import scipy.optimize  # here, not at the top: it takes 0.1 s to import and measure rarely needs it
 
     def cost(log_k):
-        _, residual, _ = per_pixel_photometric_stereo(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction=shadow_fraction)
+        residual = per_pixel_photometric_stereo(intensity, rays, np.exp(log_k) * shape_only, device, band, shadow_fraction=shadow_fraction)[2]
         return float(np.nanmean(residual))
 
     def search(centre, half_width):

@@ -130,7 +130,8 @@ def test_per_pixel_solve_recovers_rho_n_under_the_leds_and_leaves_shadows_out():
     intensity = np.einsum("mkp,kp->mp", lights, g_true)
     intensity[1, :100] *= 0.01  # shadowed
     intensity[:2, 100:110] = 0.0  # only two lit
-    g, residual, used = per_pixel_photometric_stereo(intensity, rays, depth, device, "green")
+    normals, albedo, residual, used = per_pixel_photometric_stereo(intensity, rays, depth, device, "green")
+    g = albedo * normals
     fine = np.ones(count, bool)
     fine[100:110] = False
     np.testing.assert_allclose(g[:, fine], g_true[:, fine], rtol=1e-4, atol=1e-6)
