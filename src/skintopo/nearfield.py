@@ -31,8 +31,8 @@ a remaining 0.25 um would add at most 0.02 um to it in quadrature (measured: 1.5
 1.5879 um between one and two passes of a band started from another).
 
 The per-pixel solves and the resampling's fixed point are compiled loops
-(:mod:`skintopo._nearfield_kernels`, Numba): 12 images of 1000 x 1000 take about 3.5-3.7x the
-distant-light solver (`bench/bench_nearfield.py`); the first call in a process loads them
+(:mod:`skintopo._nearfield_kernels`, Numba): 12 images of 1000 x 1000 take about 3x the
+distant-light solver (2.8-3.2x, `bench/bench_nearfield.py`); the first call in a process loads them
 (about 0.3 s with Numba's import, after a compilation of a few seconds once per installation).
 
 The result is resampled to a regular grid in the skin plane (:func:`surface_grid`): the
