@@ -1,13 +1,13 @@
 """Compiled loop of the line-segment closings (:func:`skintopo.filters.line_segment_closing`).
 
 Hand-written with Numba: ``scipy.ndimage.grey_dilation`` / ``grey_erosion`` with a footprint
-visit every footprint offset for every pixel through a generic N-d iterator (about 35 ms per
-31-pixel segment at 1024 x 1024); the maximum over a few offsets is, row by row, a maximum of
-shifted contiguous rows, which the compiler turns into vector instructions (about 6x faster).
-No library offers a grey filter with an arbitrary digital line that fast (van Herk / Gil-Werman
-running extrema need a segment that is the same line through every pixel, which a rounded
-digital line at most angles is not). The result is bitwise that of SciPy: a maximum or minimum
-involves no rounding.
+visit every footprint offset for every pixel through a generic N-d iterator; the maximum over
+a few offsets is, row by row, a maximum of shifted contiguous rows, which the compiler turns
+into vector instructions. A closing of a 1024 x 1024 map with a 31-pixel segment: 37-124 ms in
+SciPy depending on the angle, 14-28 ms here. No library offers a grey filter with an
+arbitrary digital line that fast (van Herk / Gil-Werman running extrema need a segment that
+is the same line through every pixel, which a rounded digital line at most angles is not).
+The result is bitwise that of SciPy: a maximum or minimum involves no rounding.
 """
 
 import numba

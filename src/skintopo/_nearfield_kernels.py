@@ -1,20 +1,23 @@
 """Compiled per-pixel loops of near-field photometric stereo (:mod:`skintopo.nearfield`).
 
-Hand-written with Numba because no library does these two loops, and NumPy pays for them in
+Hand-written with Numba because no library does these loops, and NumPy pays for them in
 memory traffic rather than arithmetic:
 
 * the per-pixel least squares with each pixel's own light matrix: NumPy builds the (LEDs, 3,
   pixels) light vectors and the normal equations' six sums as separate whole-array passes,
   three times per pixel for the shadow rule; here each pixel's light vectors live in
-  registers and its three small solves follow (about 5x faster at 1000 x 1000);
+  registers and its three small solves follow (1000 x 1000 on two threads: 51 ms with the
+  shadow rule, 31 ms without; the NumPy version took 70-130 ms);
 * the fixed point that finds where each node of the skin-plane grid lies on the image:
   NumPy re-projects and re-interpolates the whole array of nodes still moving at every step;
-  here each node iterates alone (about 8x faster).
+  here each node iterates alone (about 30 instead of 120 ms at 1000 x 1000);
+* the slopes of log depth from the normals (one pass instead of a dozen array operations).
 
 The arithmetic is that of the NumPy formulas the docstrings of :mod:`skintopo.nearfield`
-give, in double precision (the NumPy version summed in float32: results agree to about
-1e-6 relative). ``cache=True``: compiled once per installation (a few seconds, on the first
-call), loaded from the cache afterwards.
+give, in double precision (the NumPy version summed in float32: on the simulated forehead
+the heights' error after form removal changed from 1.61026 to 1.61028 um). ``cache=True``:
+compiled once per installation (a few seconds, on the first call), loaded from the cache
+afterwards; ``error_model="numpy"``: a division by zero gives inf or NaN, as in NumPy.
 """
 
 import math
