@@ -51,6 +51,7 @@ import scipy.fft
 import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
+from skintopo.filters import linear_weights
 from skintopo.height import fill_from_nearest
 from skintopo.heightmap import HeightMap
 from skintopo.texture.areal import row_blocks
@@ -96,8 +97,9 @@ def resample_for_fractal(height: HeightMap):
     rows, columns = z.shape
     k = int(round(np.log2(columns)))
     n = 2**k + 1
-    column_lower, column_fraction = _linear_weights(columns, n)
-    row_lower, row_fraction = _linear_weights(rows, n)
+    # pixel-centre mapping: output point i of n sits at (i + 0.5) size / n - 0.5 of the input
+    column_lower, column_fraction = linear_weights((np.arange(n) + 0.5) * columns / n - 0.5, columns)
+    row_lower, row_fraction = linear_weights((np.arange(n) + 0.5) * rows / n - 0.5, rows)
     out = np.empty((n, n))
     for start, stop in row_blocks(n):
         first = row_lower[start]
@@ -105,14 +107,6 @@ def resample_for_fractal(height: HeightMap):
         along_rows = _interpolate(block, column_lower, column_fraction[None, :], axis=1)
         out[start:stop] = _interpolate(along_rows, row_lower[start:stop] - first, row_fraction[start:stop, None], axis=0)
     return out, k
-
-
-def _linear_weights(size, n):
-    """Linear interpolation of ``size`` samples at n points with pixel-centre mapping,
-    x_i = (i + 0.5) size / n - 0.5, clamped to the ends: (lower sample, fraction) of each."""
-    coords = ((np.arange(n) + 0.5) * size / n - 0.5).clip(0, size - 1)
-    lower = np.minimum(coords.astype(np.intp), size - 2)
-    return lower, coords - lower
 
 
 def _interpolate(z, lower, fraction, axis):
