@@ -342,9 +342,9 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         only (one pass at 1000 px, about 0.18 s; after form removal the error is that of a
         start from scratch, tests/nearfield/test_nearfield.py). The start's shadow decisions
         are kept (shadows are geometry, which the bands share; this band's own saturated
-        observations are left out, the start's are not): 0.22 instead of 0.27 s per band, heights after form removal
-        within 0.01 um of the band's own shadow rule on the simulated forehead, diffuse or with
-        skin optics (bench_nearfield's scenes, 2026-12-03).
+        observations are left out, the start's are not): 0.22 instead of 0.27 s per band,
+        heights after form removal within 0.01 um of the band's own shadow rule on the
+        simulated forehead, diffuse or with skin optics (bench_nearfield's scenes, 2026-12-03).
     tolerance_um, max_iterations
         Stop when the RMS depth change, or the distance to the fixed point it implies
         (:func:`remaining_change_um`), is below ``tolerance_um``.
@@ -425,8 +425,8 @@ def _alternate(images, device, mask, depth, scale, *, band, shadow_fraction, tol
                       for v in (w_u, w_v))
     intensity = _compact(images, mask)
     sample = np.zeros(shape, bool)
-    step = int(np.ceil(np.sqrt(mask.size / SCALE_SAMPLE_PIXELS)))  # 2 at 256 x 256, 3 for the binned 333 x 333 of 1000 x 1000
-    sample[::step, ::step] = True
+    stride = int(np.ceil(np.sqrt(mask.size / SCALE_SAMPLE_PIXELS)))  # 2 at 256 x 256, 3 for the binned 333 x 333 of 1000 x 1000
+    sample[::stride, ::stride] = True
     sample = _compact(sample, mask)
     depth = _compact(depth, mask).astype(np.float64)
     changes, scales = [], []

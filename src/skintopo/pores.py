@@ -172,7 +172,7 @@ def _measure_pores(height: HeightMap, *, max_opening_um, min_opening_um, min_dep
     pores = []
     pixel_mm2 = dx * dy * 1e-6
     areas, major, minor = ellipse_axes(candidates)
-    roundness = np.where(major > 0, minor / np.where(major > 0, major, 1.0), 1.0)  # as axis_minor_length / axis_major_length
+    roundness = np.divide(minor, major, out=np.ones_like(major), where=major > 0)  # minor / major axis; 1 for a single pixel
     diameters = 2.0 * np.sqrt(areas * dx * dy / np.pi)
     plausible = (min_opening_um <= diameters) & (diameters <= max_opening_um) & (roundness >= min_roundness)
     for region in skimage.measure.regionprops(candidates, intensity_image=finite):
