@@ -7,7 +7,7 @@ memory traffic rather than arithmetic:
   pixels) light vectors and the normal equations' six sums as separate whole-array passes,
   three times per pixel for the shadow rule; here each pixel's light vectors live in
   registers and its three small solves follow (1000 x 1000 on two threads: 51 ms with the
-  shadow rule, 31 ms without; the NumPy version took 70-130 ms);
+  shadow rule, 31 ms without; the NumPy version took about 80 ms a call);
 * the fixed point that finds where each node of the skin-plane grid lies on the image:
   NumPy re-projects and re-interpolates the whole array of nodes still moving at every step;
   here each node iterates alone (about 30 instead of 120 ms at 1000 x 1000);
