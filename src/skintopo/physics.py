@@ -66,10 +66,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft
-import scipy.ndimage
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import polynomial_form
+from skintopo.filters import bilinear_resize, polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
@@ -300,11 +299,13 @@ class SpecularLobe:
     D = exp(-tan^2 alpha / m^2) / (m^2 cos^4 alpha) (Beckmann, without its 1/pi, which the
     fitted scale takes), alpha the angle between n and the half vector h of l and v. The
     geometry (tan^2 alpha and the factor that does not depend on m) is computed once, so a
-    search over m costs one exponential per candidate.
+    search over m costs one exponential per candidate. Single precision (the lobe feeds the
+    single-precision Fourier passes; 1 - cos^2 near the peak keeps about 1e-7).
     """
 
     def __init__(self, normals, lights, visible=True):
-        view = np.array([0.0, 0.0, 1.0])
+        normals, lights = np.asarray(normals, dtype=np.float32), np.asarray(lights, dtype=np.float32)
+        view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
         halves = (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
         cosine = np.clip(np.einsum("rck,mk->mrc", normals, halves), 1e-6, 1.0)
         self.tan2 = (1 - cosine**2) / cosine**2
@@ -312,7 +313,7 @@ class SpecularLobe:
         self.factor = np.where(lit, 1.0 / (cosine**4 * np.clip(normals[..., 2], 0.2, 1.0)), 0.0)
 
     def __call__(self, roughness):
-        return np.exp(self.tan2 * (-1.0 / roughness**2)) * (self.factor / roughness**2)
+        return np.exp(self.tan2 * np.float32(-1.0 / roughness**2)) * (self.factor / np.float32(roughness**2))
 
 
 class _Interreflection:
@@ -342,8 +343,7 @@ class _Interreflection:
         gathered = (self.operator @ coarse.reshape(coarse.shape[0], -1).T).T.reshape(coarse.shape)
         if self.factor == 1:
             return gathered
-        zoom = (1, self.shape[0] / gathered.shape[1], self.shape[1] / gathered.shape[2])
-        return scipy.ndimage.zoom(gathered, zoom, order=1, mode="nearest", grid_mode=True)
+        return bilinear_resize(gathered, self.shape, self.factor, (self.factor - 1) / 2)  # each block mean at its block's centre
 
 
 def _check_inputs(images, lights):
@@ -453,7 +453,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
                                                          transfer[band]) for band in REQUIRED_BANDS}
         if highlights:
             specular, specular_images = _fit_specular([fourier.forward(direct[band]) for band in REQUIRED_BANDS], gain, fourier,
-                                                      normals, lights, visible, start=specular["roughness"])
+                                                      normals, lights, visible, start=specular["roughness"] if specular["scale"] > 0 else None)
         diffuse = np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern
         residuals.append(float(np.sqrt(np.mean([(direct[band] - specular_images
                                                  - fourier.apply(albedo_level[band] * diffuse, transfer[band])) ** 2
@@ -519,8 +519,9 @@ def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible, start
 
     The misfit is searched on ROUGHNESS_GRID assuming it is unimodal in m: without ``start``
     every other grid value, then the two neighbours of the best; with ``start`` (the last
-    iteration's m), from that value downhill to the first rise. Both give the grid's minimum
-    when the misfit is unimodal.
+    iteration's m, when it found a highlight), from that value downhill to the first rise.
+    Both give the grid's minimum when the misfit is unimodal. (Where no lobe fits, k is 0 and
+    the misfit flat: a walk would stop at once, hence no ``start`` then.)
     """
     pairs = [(0, 1), (0, 2), (1, 2)]
     leaks = [fourier.inverse(gain[i] * direct_spectra[j]).astype(float) for i, j in pairs]  # double: sums of 1e6 terms

@@ -43,8 +43,8 @@ def _radial_steps(radius_px):
 
 def _march(z, pixel, azimuth, steps):
     """For each radial step along ``azimuth``, yield the source and target slices of the
-    pixels whose sample stays in the field, the target offset and the elevation angle of the
-    target seen from the source. Offsets are rounded to whole pixels; repeats are skipped."""
+    pixels whose sample stays in the field, the target's rise above the source (z difference)
+    and their horizontal distance. Offsets are rounded to whole pixels; repeats are skipped."""
     rows, columns = z.shape
     previous = None
     for r in steps:
@@ -56,8 +56,7 @@ def _march(z, pixel, azimuth, steps):
         source = (slice(max(0, -dr), rows - max(0, dr)), slice(max(0, -dc), columns - max(0, dc)))
         target = (slice(max(0, dr), rows - max(0, -dr)), slice(max(0, dc), columns - max(0, -dc)))
         distance = pixel * np.hypot(dr, dc)
-        elevation = np.arctan((z[target] - z[source]) / distance)
-        yield source, target, (dr, dc), elevation
+        yield source, target, z[target] - z[source], distance
 
 
 def cast_shadow(z, pixel, light):
@@ -67,11 +66,11 @@ def cast_shadow(z, pixel, light):
     shadow = np.zeros(z.shape, dtype=bool)
     if horizontal < 1e-9:
         return shadow
-    elevation = np.arctan2(light[2], horizontal)
-    reach = int(np.ceil(np.ptp(z) / (pixel * np.tan(elevation)))) + 1
+    slope = light[2] / horizontal  # tangent of the light's elevation
+    reach = int(np.ceil(np.ptp(z) / (pixel * slope))) + 1
     azimuth = np.arctan2(light[1], light[0])
-    for source, _, _, rise in _march(z, pixel, azimuth, [float(r) for r in range(1, reach + 1)]):
-        shadow[source] |= rise > elevation
+    for source, _, rise, distance in _march(z, pixel, azimuth, [float(r) for r in range(1, reach + 1)]):
+        shadow[source] |= rise > slope * distance
     return shadow
 
 
@@ -98,7 +97,8 @@ def interreflection_operator(z, normals, pixel, *, radius_um, n_azimuth=16, min_
 
         horizon = np.arctan2(-a, n_z)  # tangent-plane elevation: n . omega = 0
         covered = primitive(horizon, slice(None))  # the primitive at the current horizon, per pixel
-        for source, target, _, elevation in _march(z, pixel, azimuth, steps):
+        for source, target, rise, distance in _march(z, pixel, azimuth, steps):
+            elevation = np.arctan(rise / distance)
             pixels = index[source].ravel()
             rises = elevation.ravel() > horizon[pixels]
             if not rises.any():
