@@ -353,12 +353,16 @@ def bilinear_resize(values, shape, factor, offset=0.0):
     all nodes (offset 0). Equal to ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``
     at those points (to rounding), made separably along rows then columns on a regular grid:
     about 7x faster at 1000 x 1000 (no coordinate arrays, no per-point weights). A stack
-    (..., rows, columns) is resized image by image."""
+    (..., rows, columns) is resized image by image, in the precision of ``values``. Columns
+    first: gathering along the last axis is the slow step, and it runs on the input's rows
+    (fewer when enlarging; 3x faster for 4 x 250^2 -> 1000^2)."""
     n_rows, n_columns = values.shape[-2:]
     (r0, t), (c0, u) = (linear_weights((np.arange(n_out) - offset) / factor, n_in) for n_out, n_in in zip(shape, (n_rows, n_columns)))
     r1, c1 = np.minimum(r0 + 1, n_rows - 1), np.minimum(c0 + 1, n_columns - 1)
-    rows = values[..., r0, :] * (1 - t)[:, None] + values[..., r1, :] * t[:, None]
-    return rows[..., c0] * (1 - u) + rows[..., c1] * u
+    dtype = values.dtype if np.issubdtype(values.dtype, np.floating) else float
+    t, u = t.astype(dtype), u.astype(dtype)
+    columns = values[..., c0] * (1 - u) + values[..., c1] * u
+    return columns[..., r0, :] * (1 - t)[:, None] + columns[..., r1, :] * t[:, None]
 
 
 def block_means_of_valid(z, valid, spacing, factor, min_valid=0.5):

@@ -343,7 +343,8 @@ class _Interreflection:
         gathered = (self.operator @ coarse.reshape(coarse.shape[0], -1).T).T.reshape(coarse.shape)
         if self.factor == 1:
             return gathered
-        return bilinear_resize(gathered, self.shape, self.factor, (self.factor - 1) / 2)  # each block mean at its block's centre
+        # each block mean at its block's centre; single precision, as the Fourier passes it feeds
+        return bilinear_resize(gathered.astype(np.float32), self.shape, self.factor, (self.factor - 1) / 2)
 
 
 def _check_inputs(images, lights):
@@ -424,16 +425,16 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     power = (gain**2).sum(0)
     # S = (sum_c a_c J_c / sum_c a_c^2) min(1, G / A), A = sqrt(sum_c rho_c^2 / sum_c a_c^2) the deconvolution's gain
     fusion = gain / power * np.minimum(1.0, MAX_DECONVOLUTION_GAIN * np.sqrt(power / sum(albedo_level[b] ** 2 for b in REQUIRED_BANDS)))
-    specular_images = np.zeros_like(images["red"])
+    specular_images, specular_spectrum = np.zeros_like(images["red"]), 0.0
     albedo_pattern = np.ones(shape)
     direct = dict(images)  # I_c - T_c[rho_c v K B_c]: no interreflection known yet
+    direct_spectra = [fourier.forward(direct[band]) for band in REQUIRED_BANDS]  # the transform is linear: F(J - s) = F(J) - F(s)
     gather = None
     specular = {"roughness": None, "scale": 0.0}
     changes, residuals = [], []
     previous = best = None
     for _ in progress([f"iteration {k}" for k in range(1, iterations + 1)]):  # ends early once converged
-        spectra = np.stack([fourier.forward(direct[band] - specular_images) for band in REQUIRED_BANDS])
-        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, spectra))
+        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, np.stack([d - specular_spectrum for d in direct_spectra])))
         stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
         height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
@@ -449,15 +450,17 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
         if interreflection:
             gather = _Interreflection(height, radius_um)
-            direct = {band: images[band] - fourier.apply(albedo_level[band] * albedo_pattern * gather.gather(images[band] - specular_images),
+            reflectance = albedo_pattern.astype(np.float32)
+            direct = {band: images[band] - fourier.apply(albedo_level[band] * reflectance * gather.gather(images[band] - specular_images),
                                                          transfer[band]) for band in REQUIRED_BANDS}
+            direct_spectra = [fourier.forward(direct[band]) for band in REQUIRED_BANDS]
         if highlights:
-            specular, specular_images = _fit_specular([fourier.forward(direct[band]) for band in REQUIRED_BANDS], gain, fourier,
-                                                      normals, lights, visible, start=specular["roughness"] if specular["scale"] > 0 else None)
-        diffuse = np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern
-        residuals.append(float(np.sqrt(np.mean([(direct[band] - specular_images
-                                                 - fourier.apply(albedo_level[band] * diffuse, transfer[band])) ** 2
-                                                for band in REQUIRED_BANDS]))))
+            specular, specular_images = _fit_specular(direct_spectra, gain, fourier, normals, lights, visible,
+                                                      start=specular["roughness"] if specular["scale"] > 0 else None)
+            specular_spectrum = fourier.forward(specular_images)
+        diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
+        residuals.append(float(np.sqrt(np.mean([fourier.inverse(d - specular_spectrum - a * diffuse).astype(float) ** 2
+                                                for d, a in zip(direct_spectra, gain)]))))
         if changes and changes[-1] < tolerance:
             break
     height, albedo_pattern, specular = best
