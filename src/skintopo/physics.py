@@ -85,6 +85,7 @@ PLAUSIBLE_CORRELATION = 0.5  # least correlation of the physics height with the 
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
 ROUGHNESS_GRID = np.linspace(0.15, 0.7, 12)  # Beckmann m searched (skin 0.3-0.45, oily skin smoother: field notes)
+ROUGHNESS_START = 0.35  # the first search starts in the middle of skin's range
 SHAPE_BOUNDS = (0.6, 50.0)  # Matern shape a: 3/2 = exponential profile, 50 ~ Gaussian
 
 
@@ -180,12 +181,6 @@ class PhysicsResult:
         }
 
 
-def _frequencies(shape, spacing):
-    dy, dx = spacing
-    fy, fx = scipy.fft.fftfreq(shape[0], dy), scipy.fft.fftfreq(shape[1], dx)
-    return np.hypot(*np.meshgrid(fy, fx, indexing="ij"))
-
-
 def band_transfer_ratios(scaled_normals, spacing):
     """Measured T_red / T_blue and T_green / T_blue per ring of spatial frequency.
 
@@ -210,15 +205,22 @@ def band_transfer_ratios(scaled_normals, spacing):
     window = np.outer(np.hanning(shape[0]), np.hanning(shape[1]))
     for band, g in scaled_normals.items():
         albedo = np.nanmedian(np.linalg.norm(g, axis=-1))
-        spectra[band] = [scipy.fft.fft2(np.nan_to_num((g[..., k] - np.nanmean(g[..., k])) / albedo) * window) for k in (0, 1)]
-    f = _frequencies(shape, spacing)
+        spectra[band] = [scipy.fft.rfft2(np.nan_to_num((g[..., k] - np.nanmean(g[..., k])) / albedo) * window, workers=-1) for k in (0, 1)]
+    dy, dx = spacing
+    f = np.hypot(*np.meshgrid(scipy.fft.fftfreq(shape[0], dy), scipy.fft.rfftfreq(shape[1], dx), indexing="ij"))
+    # the real transform's half plane: a column stands for itself and its mirror -f (the same ring, the same
+    # cross-spectrum by Hermitian symmetry), except the zero and Nyquist columns, which have none
+    counted = np.full(f.shape[1], 2.0)
+    counted[0] = 1.0
+    if shape[1] % 2 == 0:
+        counted[-1] = 1.0
     step = 1 / (max(spacing[0] * shape[0], spacing[1] * shape[1]))
     rings = int(0.5 / max(spacing) / step)
     index = np.minimum(np.rint(f / step).astype(int), rings + 1).ravel()
-    power = np.bincount(index, sum(np.abs(s) ** 2 for s in spectra["blue"]).ravel(), rings + 2)[: rings + 1]
+    power = np.bincount(index, (counted * sum(np.abs(s) ** 2 for s in spectra["blue"])).ravel(), rings + 2)[: rings + 1]
     ratios = {}
     for band in ("red", "green"):
-        cross = sum((a * np.conj(b)).real for a, b in zip(spectra[band], spectra["blue"]))
+        cross = counted * sum((a * np.conj(b)).real for a, b in zip(spectra[band], spectra["blue"]))
         ratios[band] = np.bincount(index, cross.ravel(), rings + 2)[: rings + 1] / np.maximum(power, 1e-300)
     return np.arange(rings + 1) * step, ratios, power
 
@@ -266,8 +268,7 @@ class _Filter:
 
     In single precision (images, transfer functions and spectra): these passes are bound by
     memory traffic, and float32 makes padding, transforms and products 3-6x faster at
-    1000 x 1000 (measured); the heights move by under 1e-3 um. Inner products that decide a
-    fit are taken in double precision (see ``_fit_specular``)."""
+    1000 x 1000 (measured); the heights move by under 1e-3 um."""
 
     def __init__(self, shape, spacing, pad):
         self.pad = pad
@@ -411,7 +412,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
         albedo_level[band] = float(np.nanmedian(stereo.albedo))
         fitted = np.einsum("rck,mk->mrc", np.nan_to_num(scaled_normals[band]), lights)
-        images[band] = np.where(np.isfinite(images[band]) & mask, images[band], fitted)
+        images[band] = np.where(np.isfinite(images[band]) & mask, images[band], fitted).astype(np.float32)  # as the Fourier passes
     if not scattering:
         kernels, kernel_fit_rms = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0
     elif kernels is not None:
@@ -515,50 +516,55 @@ def _fit_specular(direct_spectra, gain, fourier, normals, lights, visible, start
 
     The least squares is written with inner products only: with o the observed difference
     (orthogonal to the leak L) and p the predicted one, the orthogonalised prediction
-    q = p - L <p, L> / <L, L> gives <o, q> = <o, p> and |q|^2 = |p|^2 - <p, L>^2 / <L, L>, so
-    k = sum <o, p> / sum |q|^2 and the misfit sum |o|^2 - 2 k <o, p> + k^2 |q|^2 need no
-    orthogonalised images; the third pair's prediction is the difference of the other two
-    (a_2 - a_1 = (a_2 - a_0) - (a_1 - a_0)), one inverse transform less.
+    q = p - L <p, L> / <L, L> gives <o, q> = <o, p> and |q|^2 = |p|^2 - <p, L>^2 / <L, L>;
+    k = sum <o, p> / sum |q|^2 explains k (2 sum <o, p> - k sum |q|^2) of sum |o|^2, and the
+    best m explains the most (compared directly, not as a small difference of two large
+    misfits: the sums are single-precision BLAS dot products, 2e-7 relative on 4e6 terms).
+    The third pair's prediction is the difference of the other two:
+    a_2 - a_1 = (a_2 - a_0) - (a_1 - a_0).
 
-    The misfit is searched on ROUGHNESS_GRID assuming it is unimodal in m: without ``start``
-    every other grid value, then the two neighbours of the best; with ``start`` (the last
-    iteration's m, when it found a highlight), from that value downhill to the first rise.
-    Both give the grid's minimum when the misfit is unimodal. (Where no lobe fits, k is 0 and
-    the misfit flat: a walk would stop at once, hence no ``start`` then.)
+    The misfit is searched on ROUGHNESS_GRID assuming it is unimodal in m: from the grid
+    value nearest ``start`` (the last iteration's m, else ROUGHNESS_START) downhill to the
+    first rise; if that explains nothing (k = 0: the misfit is flat there, and a walk stops
+    at once), every other grid value, then the two neighbours of the best. Both give the
+    grid's minimum when the misfit is unimodal.
     """
     pairs = [(0, 1), (0, 2), (1, 2)]
-    leaks = [fourier.inverse(gain[i] * direct_spectra[j]).astype(float) for i, j in pairs]  # double: sums of 1e6 terms
-    leak_norms = [np.vdot(leak, leak) for leak in leaks]
+    leaks = [np.ascontiguousarray(fourier.inverse(gain[i] * direct_spectra[j])) for i, j in pairs]
+    leak_norms = [_dot(leak, leak) for leak in leaks]
     observed = []
     for (i, j), leak, norm in zip(pairs, leaks, leak_norms):
-        difference = fourier.inverse(gain[j] * direct_spectra[i]) - leak  # float32 - float64: double
-        observed.append(difference - leak * (np.vdot(difference, leak) / norm))
-    observed_norm = sum(np.vdot(o, o) for o in observed)
+        difference = np.ascontiguousarray(fourier.inverse(gain[j] * direct_spectra[i] - gain[i] * direct_spectra[j]))
+        observed.append(difference - leak * np.float32(_dot(difference, leak) / norm))
     differences = (gain[1] - gain[0], gain[2] - gain[0])
     lobes = SpecularLobe(normals, lights, visible)
     fits = {}
 
-    def fit(k):
+    def explained(k):  # the part of sum |o|^2 that the best scale of the lobe of roughness ROUGHNESS_GRID[k] explains
         if k not in fits:
             lobe = lobes(ROUGHNESS_GRID[k])
             spectrum = fourier.forward(lobe)
-            first, second = (fourier.inverse(difference * spectrum).astype(float) for difference in differences)
+            first, second = (np.ascontiguousarray(fourier.inverse(difference * spectrum)) for difference in differences)
             along = cross = 0.0
             for o, p, leak, norm in zip(observed, (first, second, second - first), leaks, leak_norms):
-                along += np.vdot(o, p)
-                cross += np.vdot(p, p) - np.vdot(p, leak) ** 2 / norm
+                along += _dot(o, p)
+                cross += _dot(p, p) - _dot(p, leak) ** 2 / norm
             scale = max(0.0, along / cross)
-            fits[k] = (observed_norm - 2 * scale * along + scale**2 * cross, scale, lobe)
+            fits[k] = (scale * (2 * along - scale * cross), scale, lobe)
         return fits[k][0]
 
     last = len(ROUGHNESS_GRID) - 1
-    if start is None:
-        best = min(range(0, last + 1, 2), key=fit)
-        best = min((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=fit)
-    else:
-        best = int(np.argmin(np.abs(ROUGHNESS_GRID - start)))
-        step = -1 if best > 0 and (best == last or fit(best - 1) < fit(best)) else 1
-        while 0 <= best + step <= last and fit(best + step) < fit(best):
-            best += step
+    best = int(np.argmin(np.abs(ROUGHNESS_GRID - (ROUGHNESS_START if start is None else start))))
+    step = -1 if best > 0 and (best == last or explained(best - 1) > explained(best)) else 1
+    while 0 <= best + step <= last and explained(best + step) > explained(best):
+        best += step
+    if fits[best][1] == 0:
+        best = max(range(0, last + 1, 2), key=explained)
+        best = max((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=explained)
     _, scale, lobe = fits[best]
     return {"roughness": float(ROUGHNESS_GRID[best]), "scale": float(scale)}, scale * lobe
+
+
+def _dot(a, b):
+    """Sum of a * b over two contiguous arrays of one shape (BLAS dot, no temporary)."""
+    return float(np.dot(a.ravel(), b.ravel()))

@@ -10,7 +10,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
-from skintopo.physics import IDENTITY_KERNEL, ScatteringKernel, estimate_scattering_kernels, physics_height
+from skintopo.physics import IDENTITY_KERNEL, ScatteringKernel, band_transfer_ratios, estimate_scattering_kernels, physics_height
 from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
 
@@ -27,6 +27,29 @@ def _blurred_scaled_normals(kernels, seed=2):
         spectrum = np.fft.fft2(0.5 * normals, axes=(0, 1)) * kernel.transfer(f)[..., None]
         out[band] = np.fft.ifft2(spectrum, axes=(0, 1)).real
     return out
+
+
+@pytest.mark.parametrize("shape", [(48, 64), (47, 63)])
+def test_band_ratios_from_the_half_plane_equal_the_full_plane_sums(shape):
+    """The real transform's half plane, each column counted for its mirror, gives the ring
+    sums of the full complex transform (written out here with numpy.fft.fft2)."""
+    rng = np.random.default_rng(3)
+    fields = {band: rng.normal(size=(*shape, 3)) + [0, 0, 2] for band in BANDS}
+    frequency, ratios, power = band_transfer_ratios(fields, (15.0, 20.0))  # x's Nyquist column inside the rings
+    window = np.outer(np.hanning(shape[0]), np.hanning(shape[1]))
+    spectra = {}
+    for band, g in fields.items():
+        albedo = np.median(np.linalg.norm(g, axis=-1))
+        spectra[band] = [np.fft.fft2((g[..., k] - g[..., k].mean()) / albedo * window) for k in (0, 1)]
+    f = np.hypot(*np.meshgrid(np.fft.fftfreq(shape[0], 15.0), np.fft.fftfreq(shape[1], 20.0), indexing="ij"))
+    step = frequency[1]
+    ring = np.rint(f / step).astype(int)
+    for k in range(1, len(frequency)):
+        blue = sum(np.abs(s[ring == k]) ** 2 for s in spectra["blue"]).sum()
+        assert power[k] == pytest.approx(blue, rel=1e-9)
+        for band in ("red", "green"):
+            cross = sum((a[ring == k] * np.conj(b[ring == k])).real.sum() for a, b in zip(spectra[band], spectra["blue"]))
+            assert ratios[band][k] == pytest.approx(cross / blue, rel=1e-9, abs=1e-12)
 
 
 def _simulated(preset, skin, seed, size=256, optics="default-v1"):
