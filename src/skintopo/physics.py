@@ -411,8 +411,11 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         plain.append(integrate_normals(stereo.normals, spacing, mask=mask & stereo.valid, method=integrator))
         scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
         albedo_level[band] = float(np.nanmedian(stereo.albedo))
-        fitted = np.einsum("rck,mk->mrc", np.nan_to_num(scaled_normals[band]), lights)
-        images[band] = np.where(np.isfinite(images[band]) & mask, images[band], fitted).astype(np.float32)  # as the Fourier passes
+        images[band] = images[band].astype(np.float32)  # as the Fourier passes
+        missing = ~(np.isfinite(images[band]) & mask)
+        if missing.any():
+            light, row, column = np.nonzero(missing)
+            images[band][missing] = np.einsum("pk,pk->p", np.nan_to_num(scaled_normals[band][row, column]), lights[light])
     if not scattering:
         kernels, kernel_fit_rms = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0
     elif kernels is not None:
@@ -435,7 +438,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     changes, residuals = [], []
     previous = best = None
     for _ in progress([f"iteration {k}" for k in range(1, iterations + 1)]):  # ends early once converged
-        shading = fourier.inverse(np.einsum("cyx,cmyx->myx", fusion, np.stack([d - specular_spectrum for d in direct_spectra])))
+        shading = fourier.inverse(sum(weight * (d - specular_spectrum) for weight, d in zip(fusion, direct_spectra)))
         stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
         height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
@@ -460,8 +463,8 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
                                                       start=specular["roughness"] if specular["scale"] > 0 else None)
             specular_spectrum = fourier.forward(specular_images)
         diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
-        residuals.append(float(np.sqrt(np.mean([fourier.inverse(d - specular_spectrum - a * diffuse).astype(float) ** 2
-                                                for d, a in zip(direct_spectra, gain)]))))
+        residual = [np.ascontiguousarray(fourier.inverse(d - specular_spectrum - a * diffuse)) for d, a in zip(direct_spectra, gain)]
+        residuals.append(float(np.sqrt(sum(_dot(r, r) for r in residual) / sum(r.size for r in residual))))
         if changes and changes[-1] < tolerance:
             break
     height, albedo_pattern, specular = best
