@@ -41,9 +41,10 @@ Estimation, alternating until the height stops changing (``tolerance``):
    level is a guess, and an unbounded inverse turned that guess into 20x amplification).
 4. Photometric stereo of S (all bands at once), integration, and from the new height: K,
    cast shadows and the specular lobe's k, m (fitted to the bands' disagreement, see
-   ``_fit_specular``). The model residual I_ci - s_i - T_c[rho_c (E_i + K B_ci)] is recorded
-   per iteration. The last iteration's height is returned, unless the height changed by more
-   than half its RMS in one pass (diverging): then the one before.
+   ``_fit_specular``) for the next pass (the last pass prepares none). The model residual
+   I_ci - s_i - T_c[rho_c (E_i + K B_ci)] of each pass's height, with the K and s it was
+   made with, is recorded per iteration. The last iteration's height is returned, unless the
+   height changed by more than half its RMS in one pass (diverging): then the one before.
 
 A sanity check, not a validation: the result records its agreement with the mean of the
 plain band heights (relief ratio and correlation, both levelled) and is flagged not
@@ -322,13 +323,17 @@ class _Interreflection:
     interreflection varies over the wrinkle's width, far more slowly than the microrelief)."""
 
     def __init__(self, height: HeightMap, radius_um):
-        rows, columns = height.shape
-        self.factor = int(np.ceil(np.sqrt(rows * columns / MAX_INTERREFLECTION_PIXELS)))
-        self.shape = (rows, columns)
+        self.factor = self.grid_factor(height.shape)
+        self.shape = height.shape
         z = self.reduce(np.where(height.mask, height.z, np.nanmean(height.z[height.mask]))[None])[0]
         spacing = tuple(s * self.factor for s in height.spacing)
         self.operator = interreflection_operator(z, height_normals(z, spacing), spacing[1], radius_um=radius_um)
         self.coarse = z.shape
+
+    @staticmethod
+    def grid_factor(shape):
+        """Block size of the coarse grid for a field of ``shape``."""
+        return int(np.ceil(np.sqrt(shape[0] * shape[1] / MAX_INTERREFLECTION_PIXELS)))
 
     def reduce(self, stack):
         k = self.factor
@@ -424,20 +429,21 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         kernels, kernel_fit_rms = estimate_scattering_kernels(scaled_normals, spacing)
     pad = int(min(max(shape) // 2, np.ceil(4 * max(k.length_um for k in kernels.values()) / min(spacing)) + 4))
     fourier = _Filter(shape, spacing, pad)
-    transfer = {band: kernels[band].transfer(fourier.frequency).astype(np.float32) for band in REQUIRED_BANDS}
+    transfer = {band: kernels[band].transfer(fourier.frequency) for band in REQUIRED_BANDS}
     gain = np.stack([albedo_level[band] * transfer[band] for band in REQUIRED_BANDS])  # a_c(f)
     power = (gain**2).sum(0)
     # S = (sum_c a_c J_c / sum_c a_c^2) min(1, G / A), A = sqrt(sum_c rho_c^2 / sum_c a_c^2) the deconvolution's gain
     fusion = gain / power * np.minimum(1.0, MAX_DECONVOLUTION_GAIN * np.sqrt(power / sum(albedo_level[b] ** 2 for b in REQUIRED_BANDS)))
+    # single precision for the Fourier passes only after the division: a_c^2 of a wide kernel underflows float32
+    transfer, gain, fusion = {band: t.astype(np.float32) for band, t in transfer.items()}, gain.astype(np.float32), fusion.astype(np.float32)
     specular_images, specular_spectrum = np.zeros_like(images["red"]), 0.0
     albedo_pattern = np.ones(shape)
     direct = dict(images)  # I_c - T_c[rho_c v K B_c]: no interreflection known yet
     direct_spectra = [fourier.forward(direct[band]) for band in REQUIRED_BANDS]  # the transform is linear: F(J - s) = F(J) - F(s)
-    gather = None
     specular = {"roughness": None, "scale": 0.0}
     changes, residuals = [], []
     previous = best = None
-    for _ in progress([f"iteration {k}" for k in range(1, iterations + 1)]):  # ends early once converged
+    for k, _ in enumerate(progress([f"iteration {n}" for n in range(1, iterations + 1)]), start=1):  # ends early once converged
         shading = fourier.inverse(sum(weight * (d - specular_spectrum) for weight, d in zip(fusion, direct_spectra)))
         stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
@@ -452,6 +458,12 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         best = (height, albedo_pattern, specular)
         normals = height_normals(z, spacing)
         visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
+        # the residual of the model this pass's height was made with (its K and s), with the height's own shading
+        diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
+        residual = [np.ascontiguousarray(fourier.inverse(d - specular_spectrum - a * diffuse)) for d, a in zip(direct_spectra, gain)]
+        residuals.append(float(np.sqrt(sum(_dot(r, r) for r in residual) / sum(r.size for r in residual))))
+        if (changes and changes[-1] < tolerance) or k == iterations:
+            break  # no next pass to prepare
         if interreflection:
             gather = _Interreflection(height, radius_um)
             reflectance = albedo_pattern.astype(np.float32)
@@ -462,18 +474,13 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
             specular, specular_images = _fit_specular(direct_spectra, gain, fourier, normals, lights, visible,
                                                       start=specular["roughness"] if specular["scale"] > 0 else None)
             specular_spectrum = fourier.forward(specular_images)
-        diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
-        residual = [np.ascontiguousarray(fourier.inverse(d - specular_spectrum - a * diffuse)) for d, a in zip(direct_spectra, gain)]
-        residuals.append(float(np.sqrt(sum(_dot(r, r) for r in residual) / sum(r.size for r in residual))))
-        if changes and changes[-1] < tolerance:
-            break
     height, albedo_pattern, specular = best
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
                   "interreflection": interreflection, "highlights": highlights, "solver": solver,
                   "interreflection_radius_um": radius_um if interreflection else None,
-                  "interreflection_grid_factor": gather.factor if gather is not None else None}
+                  "interreflection_grid_factor": _Interreflection.grid_factor(shape) if interreflection else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
                          converged, diverged, kernel_fit_rms, components, _agreement(height, plain))
 
