@@ -3,7 +3,8 @@ paper's correction, in the simulator: forehead-low / -moderate / -high x light /
 seeds 1-6, 256 x 256 at 20 um, all effects on. RMS height error (um) and mean |relative
 error| of the wrinkles' max depth, per method; physics also with the skin-optics profile's
 true diffusion profiles given as its kernels ("physics-given-kernels": what estimating the
-kernels costs); an ablation (each component off) on seed 1;
+kernels costs) and with kernels from a simulated calibration capture ("physics-edge-calibrated":
+a black mask's edge on the same skin, ``skintopo calibrate skin``); an ablation (each component off) on seed 1;
 and, with ``--speed``, the time of physics on a 1000 x 1000 acquisition (12 images; median of
 3 runs in one process, each run's time recorded).
 Results: bench/results/physics.json and physics_speed.json.
@@ -20,6 +21,7 @@ import time
 import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
+from skintopo.calibration import diffusion_profile_from_edge
 from skintopo.correction import spectral_correction
 from skintopo.defaults import DEFAULT_SKIN_OPTICS, DEFAULT_SOLVER
 from skintopo.evaluation import evaluate_height
@@ -28,6 +30,7 @@ from skintopo.normals import photometric_stereo
 from skintopo.physics import physics_height
 from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
+from skintopo.synth.targets import skin_edge_images
 
 BANDS = ("red", "green", "blue", "white")
 ABLATIONS = {"physics": {}, "no-scattering": {"scattering": False}, "no-interreflection": {"interreflection": False},
@@ -42,6 +45,14 @@ def scores(height, surface):
     return {"rms_um": round(found["rms_height_error_um"], 3),
             "depth_error": round(float(np.mean(found["wrinkle_depth_error_relative"])), 4),
             "depth_bias": round(float(np.mean(np.array(found["wrinkle_max_depth_um"]) / found["wrinkle_max_depth_true_um"] - 1)), 4)}
+
+
+def edge_calibrated_kernels(optics, skin, seed):
+    """Kernels from a simulated calibration capture: a black mask's edge on another patch of the
+    same skin (skintopo.synth.targets.skin_edge_images, 256 x 512 at 20 um), through
+    skintopo.calibration.diffusion_profile_from_edge."""
+    images, _ = skin_edge_images(optics_profile(optics), skin, default_lights(), shape=(256, 512), pixel_um=20.0, seed=1000 + seed)
+    return {band: diffusion_profile_from_edge(images[band], 20.0)[0] for band in ("red", "green", "blue")}
 
 
 def case(preset, skin, seed, ablation, optics=DEFAULT_SKIN_OPTICS, solver=DEFAULT_SOLVER):
@@ -59,6 +70,7 @@ def case(preset, skin, seed, ablation, optics=DEFAULT_SKIN_OPTICS, solver=DEFAUL
         row[method] = scores(spectral_correction(normals, 20.0, method=method).height, surface)
     runs = list(ABLATIONS.items()) if ablation else [("physics", {})]
     runs.append(("physics-given-kernels", {"kernels": optics_profile(optics).scattering}))
+    runs.append(("physics-edge-calibrated", {"kernels": edge_calibrated_kernels(optics, skin, seed)}))
     runs = [(name, switches | {"solver": solver}) for name, switches in runs]  # the profile's true diffusion profiles
     for name, switches in runs:
         start = time.perf_counter()
@@ -78,11 +90,12 @@ def main(seeds, optics, solver):
                 cases.append({"preset": preset, "skin": skin, "seed": seed, "results": row})
                 best_other = min(v["rms_um"] for k, v in row.items() if k in (*BANDS, "paper", "feathered"))
                 print(preset, skin, seed, "physics", row["physics"]["rms_um"], "given kernels", row["physics-given-kernels"]["rms_um"],
+                      "edge-calibrated", row["physics-edge-calibrated"]["rms_um"],
                       "best other", best_other, flush=True, file=sys.stderr)
     others = [*BANDS, "paper", "feathered"]
     summary = {m: {"mean_rms_um": round(float(np.mean([c["results"][m]["rms_um"] for c in cases])), 3),
                    "mean_depth_error": round(float(np.mean([c["results"][m]["depth_error"] for c in cases])), 4)}
-               for m in (*others, "physics", "physics-given-kernels")}
+               for m in (*others, "physics", "physics-given-kernels", "physics-edge-calibrated")}
 
     def best_cases(method, key):
         return f"{sum(all(c['results'][method][key] < c['results'][m][key] for m in others) for c in cases)}/{len(cases)}"
@@ -94,6 +107,8 @@ def main(seeds, optics, solver):
         "physics_best_rms_cases": best_cases("physics", "rms_um"), "physics_best_depth_cases": best_cases("physics", "depth_error"),
         "given_kernels_best_rms_cases": best_cases("physics-given-kernels", "rms_um"),
         "given_kernels_best_depth_cases": best_cases("physics-given-kernels", "depth_error"),
+        "edge_calibrated_best_rms_cases": best_cases("physics-edge-calibrated", "rms_um"),
+        "edge_calibrated_best_depth_cases": best_cases("physics-edge-calibrated", "depth_error"),
         "physics_flagged_implausible": f"{flagged}/{len(cases)}", "cases": cases})
 
 

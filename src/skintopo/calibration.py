@@ -16,6 +16,22 @@ v = (0, 0, 1) (orthographic camera):
 
 (Returning n instead of L is the classic bug: the light is twice as far from the view axis.)
 
+Skin's diffusion profile (for the physically based height's scattering kernels,
+:mod:`skintopo.physics`), from an image per band of an opaque black mask with a straight edge
+laid on the skin (e.g. black tape), all LEDs on, through crossed polarisers (no surface
+reflection): light entering the skin at x' >= 0 re-emerges spread by the radial profile R; the
+part that re-emerges under the mask is lost. Averaged along the edge, the skin's radiance at
+distance x from it is
+
+    I(x) = A [(1 - w) + sum_k w_k Phi(x / sigma_k)],   x > 0,
+
+for R = (1 - w) delta + sum_k w_k G(sigma_k) (Phi the standard normal distribution function:
+the 1-D marginal of a 2-D Gaussian is a Gaussian of the same sigma). The widths sigma_k are a
+fixed geometric ladder (ratio sqrt 2) from one pixel to a third of the skin's extent beside
+the edge, not a chosen family: the weights, found by non-negative least squares, are the
+profile, and heavy tails come out as weight on wide rungs. Narrower than a pixel is taken as
+re-emerging where it entered; wider than a third of the profile is not measured.
+
 Matte (Lambertian) white sphere. The normal of every sphere pixel is known from the fitted
 circle; I = e rho max(0, n . l) is solved for g = e rho l by least squares over the lit
 pixels (above 10% of the image's maximum on the sphere, away from the terminator), giving
@@ -29,11 +45,13 @@ from pathlib import Path
 import numpy as np
 import scipy.ndimage
 import scipy.optimize
+import scipy.special
 
 from skintopo.acquisition import read_image
 from skintopo.acquisition.manifest import IMAGE_SUFFIXES
 from skintopo.device import Camera, Device, Led, aimed_at, check_device
 from skintopo.errors import SkinTopoError
+from skintopo.optics import BANDS, ScatteringProfile
 
 HIGHLIGHT_LEVEL = 0.9
 NEAR_HIGHLIGHT_LEVEL = 0.2  # near-field LED calibration: the spot's flanks too (a saturated plateau above 0.9 is a few pixels)
@@ -400,3 +418,117 @@ def calibrate_device(camera: Camera, working_distance_mm, chrome_image_sets, sph
     if problems:
         raise SkinTopoError("the calibrated device is not usable: " + "; ".join(problems))
     return device, details
+
+
+DIFFUSION_FORMAT = "skintopo-diffusion-profiles"
+MIN_EDGE_SKIN_PX = 30  # the skin beside the edge must span this many pixels (a ladder of several widths)
+
+
+def diffusion_profile_from_edge(image, pixel_um, *, name="image"):
+    """Skin's radial diffusion profile from an image of an opaque straight edge on it
+    (module notes).
+
+    Parameters
+    ----------
+    image : ndarray (rows, columns)
+        Linear image of one band; the mask is the dark side, on any side of the field.
+    pixel_um : float
+        Pixel size on the skin, micrometres.
+    name : str
+        The image's name in error messages.
+
+    Returns
+    -------
+    profile : :class:`skintopo.optics.ScatteringProfile`
+        Weights and widths (0: the light that re-emerges where it entered).
+    record : dict
+        The edge found (angle, the skin's extent beside it), the level A, the widths tried and
+        the fit's RMS misfit relative to A.
+    """
+    image = np.asarray(image, dtype=float)
+    if image.ndim != 2 or not np.isfinite(image).all():
+        raise SkinTopoError(f"{name}: need one finite grey image of one band")
+    low, high = np.percentile(image, [2, 98])
+    # a quarter of the way up: right beside the edge the skin is only half as bright as far from it
+    # when no light re-emerges where it entered (w = 1), so a mid-level threshold would take skin for mask
+    dark = image < low + (high - low) / 4
+    if high <= 2 * max(low, 0) or not 0.1 < dark.mean() < 0.9:
+        raise SkinTopoError(f"{name}: no dark mask found: an edge image needs an opaque black mask over 10-90% of the field "
+                            f"(dark share {dark.mean():.2f}, 2nd/98th percentiles {low:.3g}/{high:.3g})")
+    # turn the image so that the mask lies on the left: the dark share falls along the columns
+    across_columns = np.ptp(dark.mean(axis=0)) >= np.ptp(dark.mean(axis=1))
+    if not across_columns:
+        image, dark = image.T, dark.T
+    if dark[:, 0].mean() < dark[:, -1].mean():
+        image, dark = image[:, ::-1], dark[:, ::-1]
+    rows = np.arange(image.shape[0], dtype=float)
+    edge = dark.sum(axis=1).astype(float)  # per row, the number of dark pixels: where the mask ends
+    slope, offset = np.polyfit(rows, edge, 1)
+    misfit = edge - (offset + slope * rows)
+    if np.sqrt(np.mean(misfit**2)) > 2.0:
+        raise SkinTopoError(f"{name}: the mask's edge is not straight (the edge points scatter by {np.sqrt(np.mean(misfit**2)):.1f} px "
+                            "RMS about a line): lay a straight-edged mask")
+    columns = np.arange(image.shape[1], dtype=float)
+    # distance of each pixel centre from the edge line, on the skin side (pixel k spans [k, k + 1])
+    distance = (columns[None, :] + 0.5 - (offset + slope * rows[:, None])) / np.hypot(1.0, slope) * pixel_um
+    skin = distance >= 1.5 * pixel_um  # whole pixels beside the edge (the ones it crosses are mixed)
+    extent = float(distance[skin].max()) if skin.any() else 0.0
+    if extent < MIN_EDGE_SKIN_PX * pixel_um:
+        raise SkinTopoError(f"{name}: only {extent / pixel_um:.0f} px of skin beside the mask's edge; at least {MIN_EDGE_SKIN_PX} needed")
+    width = pixel_um / 2  # mean radiance in bins of half a pixel of distance
+    index = np.floor(distance[skin] / width).astype(int)
+    count = np.bincount(index)
+    used = count > 0
+    x = np.bincount(index, distance[skin])[used] / count[used]
+    radiance = np.bincount(index, image[skin])[used] / count[used]
+    ladder = pixel_um * np.sqrt(2.0) ** np.arange(64)
+    ladder = ladder[ladder <= extent / 3]
+    design = np.column_stack([np.ones_like(x), scipy.special.ndtr(x[:, None] / ladder[None, :])])
+    weight = np.sqrt(count[used])
+    coefficients, _ = scipy.optimize.nnls(design * weight[:, None], radiance * weight)
+    level = float(coefficients.sum())
+    if level <= 0:
+        raise SkinTopoError(f"{name}: the skin beside the edge is not brighter than the mask")
+    widths = np.concatenate([[0.0], ladder])
+    keep = coefficients > 0
+    profile = ScatteringProfile(tuple(float(w) for w in coefficients[keep] / level), tuple(float(s) for s in widths[keep]))
+    rms = float(np.sqrt(np.average((design @ coefficients - radiance) ** 2, weights=count[used])) / level)
+    record = {"edge_angle_deg": float(np.degrees(np.arctan(slope))), "edge_across": "columns" if across_columns else "rows",
+              "skin_extent_um": extent, "level": level, "widths_tried_um": [float(ladder[0]), float(ladder[-1])],
+              "rms_misfit_relative": rms}
+    return profile, record
+
+
+def write_diffusion_profiles(path, profiles, *, pixel_um, records=None, source=None):
+    """Write band -> :class:`~skintopo.optics.ScatteringProfile` as JSON (``--physics-kernels FILE``)."""
+    from skintopo.outputs import write_json_atomic
+
+    write_json_atomic(Path(path), {
+        "format": DIFFUSION_FORMAT, "version": 1, "pixel_um": pixel_um, "source": source,
+        "bands": {band: {"weights": list(p.weights), "sigmas_um": list(p.sigmas_um),
+                         "transfer_at_cycles_per_mm": {str(f): round(float(p.transfer(f / 1000)), 4) for f in (0.5, 1, 2, 4, 8)},
+                         **({"fit": records[band]} if records else {})} for band, p in profiles.items()}})
+
+
+def read_diffusion_profiles(path):
+    """band -> :class:`~skintopo.optics.ScatteringProfile` from a file of
+    :func:`write_diffusion_profiles`; a clear error naming the file otherwise."""
+    import json
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise SkinTopoError(f"{path}: cannot read diffusion profiles ({error})") from None
+    if not isinstance(data, dict) or data.get("format") != DIFFUSION_FORMAT:
+        raise SkinTopoError(f"{path}: not a diffusion-profile file (format {DIFFUSION_FORMAT!r} expected; "
+                            "write one with 'skintopo calibrate skin')")
+    bands = data.get("bands") or {}
+    missing = [band for band in BANDS if band not in bands]
+    if missing:
+        raise SkinTopoError(f"{path}: no diffusion profile for {missing}")
+    try:
+        return {band: ScatteringProfile(tuple(map(float, bands[band]["weights"])), tuple(map(float, bands[band]["sigmas_um"])))
+                for band in BANDS}
+    except (KeyError, TypeError, ValueError) as error:
+        raise SkinTopoError(f"{path}: a band's profile needs 'weights' and 'sigmas_um' ({error})") from None

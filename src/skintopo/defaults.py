@@ -57,4 +57,4 @@ DEFAULT_SKIN_OPTICS = "default-v1"  # optics: the simulator's profile (the param
 
 HEIGHT_MAP_SUFFIXES = (".x3p", ".sdf", ".gwy", ".tif", ".tiff", ".npy")  # formats: height maps that can be read
 
-CALIBRATION_TARGETS = ("chrome-sphere", "matte-sphere")  # synth: targets for 'calibrate lights'
+CALIBRATION_TARGETS = ("chrome-sphere", "matte-sphere", "skin-edge")  # synth: targets for 'calibrate lights' and 'calibrate skin'

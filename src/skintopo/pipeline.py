@@ -93,9 +93,11 @@ class HeightOptions:
     present, else the white band, else the only band), ``"paper"`` or ``"feathered"`` (the
     spectral correction, :mod:`skintopo.correction`), ``"physics"`` (the physically based
     height, :mod:`skintopo.physics`), or one band: ``red``, ``green``,
-    ``blue``, ``white``, ``specular-free``. ``physics_kernels``: for ``"physics"``, the name
-    of a skin-optics profile (:mod:`skintopo.optics`) whose diffusion profiles are taken as
-    known scattering kernels; None (default) estimates them from the capture.
+    ``blue``, ``white``, ``specular-free``. ``physics_kernels``: for ``"physics"``, known
+    scattering kernels: a diffusion-profile file (``.json``, from ``skintopo calibrate
+    skin``: :func:`skintopo.calibration.diffusion_profile_from_edge`) or the name of a
+    skin-optics profile (:mod:`skintopo.optics`) whose diffusion profiles are taken; None
+    (default) estimates them from the capture.
     """
 
     method: str = AUTO_HEIGHT
@@ -104,8 +106,18 @@ class HeightOptions:
     def __post_init__(self):
         if self.method not in HEIGHT_METHODS:
             raise SkinTopoError(f"unknown height method {self.method!r}; choose from {list(HEIGHT_METHODS)}")
-        if self.physics_kernels is not None:
-            optics_profile(self.physics_kernels)  # a clear error for an unknown profile
+        self.kernels()  # a clear error for an unknown profile or a bad file
+
+    def kernels(self):
+        """band -> diffusion profile of ``physics_kernels``, or None."""
+        name = self.physics_kernels
+        if name is None:
+            return None
+        if str(name).lower().endswith(".json"):
+            from skintopo.calibration import read_diffusion_profiles
+
+            return read_diffusion_profiles(name)
+        return optics_profile(name).scattering
 
 
 @dataclass(frozen=True)
@@ -326,10 +338,8 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:
-        name = options.height.physics_kernels
-        kernels = optics_profile(name).scattering if name is not None else None
         physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
-                                 acquisition.pixel_um, mask=acquisition.mask, kernels=kernels,
+                                 acquisition.pixel_um, mask=acquisition.mask, kernels=options.height.kernels(),
                                  integrator=options.reconstruction.integrator, solver=options.reconstruction.solver,
                                  progress=step_progress)
         return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,

@@ -1,5 +1,6 @@
 """``skintopo calibrate lights``: light directions from spheres; ``skintopo calibrate leds``: a
-device's near-field LEDs from a chrome sphere at two or more places and a flat target."""
+device's near-field LEDs from a chrome sphere at two or more places and a flat target;
+``skintopo calibrate skin``: skin's diffusion profile per band from a black mask's edge."""
 
 from __future__ import annotations
 
@@ -51,6 +52,28 @@ def run_leds(args):
     return 0
 
 
+def run_skin(args):
+    from skintopo.calibration import diffusion_profile_from_edge, read_grey_images, write_diffusion_profiles
+    from skintopo.optics import BANDS
+    from skintopo.outputs import check_output_file
+
+    paths = {band: getattr(args, band) or args.folder / f"edge_{band}.png" for band in BANDS}
+    check_output_file(args.out, overwrite=args.overwrite, inputs=list(paths.values()))
+    profiles, records = {}, {}
+    for band, path in paths.items():
+        image = read_grey_images([path])[0][0]
+        profiles[band], records[band] = diffusion_profile_from_edge(image, args.pixel_um, name=str(path))
+    write_diffusion_profiles(args.out, profiles, pixel_um=args.pixel_um, records=records,
+                             source={band: str(path) for band, path in paths.items()})
+    if not args.quiet:
+        for band, profile in profiles.items():
+            transfer = ", ".join(f"{profile.transfer(f / 1000):.2f} at {f:g}" for f in (0.5, 1, 2, 4))
+            print(f"{band:<6} re-emerging where it entered {profile.weights[0] if profile.sigmas_um[0] == 0 else 0:.2f}; "
+                  f"transfer {transfer} cycles/mm; misfit {records[band]['rms_misfit_relative']:.2%}")
+        print(f"wrote {Path(args.out).resolve()} (give it to --physics-kernels)")
+    return 0
+
+
 def add_parser(commands):
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")
@@ -76,3 +99,13 @@ def add_parser(commands):
     leds.add_argument("-o", "--out", type=Path, required=True, help="device file to write")
     shared.add_output_switches(leds)
     leds.set_defaults(handler=run_leds)
+    skin = calibrate_commands.add_parser("skin", help="skin's diffusion profile per band (the physics height's scattering kernels) "
+                                         "from images of a black mask's straight edge laid on the skin: writes a file for --physics-kernels")
+    skin.add_argument("folder", type=Path, nargs="?", default=Path("."),
+                      help="folder with edge_red.png, edge_green.png, edge_blue.png (linear images, all LEDs on, crossed polarisers)")
+    for band in ("red", "green", "blue"):
+        skin.add_argument(f"--{band}", type=Path, help=f"the {band} image, if not FOLDER/edge_{band}.png")
+    skin.add_argument("--pixel-um", type=shared.positive_float, required=True, help="pixel size on the skin in micrometres")
+    skin.add_argument("-o", "--out", type=Path, required=True, help="diffusion-profile file to write (JSON)")
+    shared.add_output_switches(skin)
+    skin.set_defaults(handler=run_skin)

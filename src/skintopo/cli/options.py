@@ -257,9 +257,10 @@ def add_pore_options(parser):
 
 
 def add_physics_kernels_option(parser):
-    parser.add_argument("--physics-kernels", metavar="PROFILE", default=None,
-                        help="physics only: take the scattering kernels from a skin-optics profile's diffusion profiles "
-                        "(literature, paper-calibrated, default-v1) instead of estimating them from the capture")
+    parser.add_argument("--physics-kernels", metavar="FILE.json|PROFILE", default=None,
+                        help="physics only: known scattering kernels instead of estimating them from the capture: a diffusion-profile "
+                        "file from 'skintopo calibrate skin', or a skin-optics profile's diffusion profiles (literature, "
+                        "paper-calibrated, default-v1)")
 
 
 def add_measure_options(parser):

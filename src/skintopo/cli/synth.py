@@ -27,8 +27,8 @@ def run(args):
 
     if args.target is not None:
         check_output_folder(args.out, overwrite=args.overwrite)
-        written = write_calibration_target(args.out, args.target, device=_device(args), size_px=args.size, seed=args.seed,
-                                           overwrite=args.overwrite)
+        written = write_calibration_target(args.out, args.target, device=_device(args), size_px=args.size, pixel_um=args.pixel_um,
+                                           optics=args.optics, skin=args.skin, seed=args.seed, overwrite=args.overwrite)
         shared.say(args, f"wrote {Path(args.out).resolve()}: {written}")
         return 0
     if args.preset not in PRESETS:
@@ -90,7 +90,8 @@ def add_parser(commands):
                        help="write the images without acquisition.json, as a camera would (then 'skintopo init' makes it)")
     synth.add_argument("--target", choices=CALIBRATION_TARGETS,
                        help="instead of skin: a calibration target under the same lights, sphere_1.png, ... for 'skintopo calibrate "
-                       "lights'; with --device: the chrome sphere at two places and a flat target for 'skintopo calibrate leds'")
+                       "lights'; with --device: the chrome sphere at two places and a flat target for 'skintopo calibrate leds'; "
+                       "skin-edge: a black mask's straight edge on skin of --optics/--skin, for 'skintopo calibrate skin'")
     synth.add_argument("--device", metavar="paper|DEVICE.JSON",
                        help="render through a device: near-field LEDs and a perspective camera (paper: the paper-like device "
                        "with a camera of --size pixels over 65 mm; or a device file); the pixel size is then the device's "

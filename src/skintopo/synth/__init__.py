@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from skintopo.acquisition import write_acquisition
+from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
 from skintopo.optics import PROFILES, SkinOptics, optics_profile
@@ -235,12 +236,23 @@ def simulate_to_folder(out, spec: SurfaceSpec, settings: RenderSettings, *, seed
     return surface
 
 
-def write_calibration_target(out, target, *, device=None, size_px=256, seed=0, overwrite=False) -> str:
+def write_calibration_target(out, target, *, device=None, size_px=256, pixel_um=20.0, optics=None, skin="light", seed=0,
+                             overwrite=False) -> str:
     """Write rehearsal images of a calibration ``target`` (``chrome-sphere``, ``matte-sphere``)
     under the default lights, ``size_px`` square (:func:`skintopo.synth.targets.write_sphere_target`);
     with a ``device``: a chrome sphere at two places and a flat target through its near-field
-    LEDs (:func:`skintopo.synth.nearfield.write_device_targets`). Returns what was written, in
+    LEDs (:func:`skintopo.synth.nearfield.write_device_targets`); ``skin-edge``: a black mask's
+    edge on skin of the ``optics`` profile, ``size_px`` x 2 ``size_px`` at ``pixel_um``
+    (:func:`skintopo.synth.targets.write_skin_edge_target`). Returns what was written, in
     words."""
+    if target == "skin-edge":
+        from skintopo.synth.targets import write_skin_edge_target
+
+        optics = optics_profile(DEFAULT_SKIN_OPTICS if optics is None else optics)
+        write_skin_edge_target(out, optics, skin, default_lights(), shape=(size_px, 2 * size_px), pixel_um=pixel_um, seed=seed,
+                               overwrite=overwrite)
+        return (f"a black mask's edge on {skin} skin ({optics.name} optics), edge_red/green/blue.png at {pixel_um:g} um; "
+                "the true diffusion profiles in ground_truth.json")
     if device is not None:
         from skintopo.synth.nearfield import write_device_targets
 

@@ -12,6 +12,13 @@ on a real mirror sphere.
 
 Matte: a Lambertian white sphere, I = e rho max(0, n . l), rho = 0.7, with the light's
 relative intensity e.
+
+Skin edge (for ``skintopo calibrate skin``): skin with its microrelief (preset
+``flat-microrelief``) under all lights at once, through crossed polarisers (no surface
+reflection), with an opaque black mask (reflectance 0.03) laid over the left 30% of the
+field, its edge tilted by 2 degrees; a pixel the edge crosses is lit and seen in proportion
+to its uncovered area. The skin's radiance is the profile's scattering T[rho E] of the
+irradiance E that reaches the uncovered skin (light re-emerging under the mask is absorbed).
 """
 
 from __future__ import annotations
@@ -20,12 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from skintopo.defaults import CALIBRATION_TARGETS
 from skintopo.errors import SkinTopoError
 from skintopo.formats import write_png
 from skintopo.outputs import staged_output_folder
 
+SPHERE_TARGETS = ("chrome-sphere", "matte-sphere")
 LED_ANGULAR_RADIUS_DEG = 2.0
+MASK_REFLECTANCE = 0.03  # black tape
+EDGE_TILT_DEG = 2.0
 ROOM_LEVEL = 0.06
 MATTE_ALBEDO = 0.7
 
@@ -47,8 +56,8 @@ def sphere_images(kind, lights, *, shape=(240, 320), intensities=None, noise=0.0
 
     Returns the images and the sphere as (centre x, centre y, radius) in pixels.
     """
-    if kind not in CALIBRATION_TARGETS:
-        raise SkinTopoError(f"unknown calibration target {kind!r}; choose from {list(CALIBRATION_TARGETS)}")
+    if kind not in SPHERE_TARGETS:
+        raise SkinTopoError(f"unknown sphere target {kind!r}; choose from {list(SPHERE_TARGETS)}")
     lights = np.asarray(lights, dtype=float)
     intensities = np.ones(len(lights)) if intensities is None else np.asarray(intensities, dtype=float)
     sphere = (shape[1] / 2 + 0.37, shape[0] / 2 - 0.21, 0.38 * min(shape))  # off the pixel grid on purpose
@@ -82,5 +91,46 @@ def write_sphere_target(out, kind, lights, *, shape=(240, 320), intensities=None
                  "intensities": None if intensities is None else np.asarray(intensities).tolist(),
                  "sphere_px": {"centre_x": sphere[0], "centre_y": sphere[1], "radius": sphere[2]},
                  "files": [f"sphere_{i}.png" for i in range(1, len(images) + 1)]}
+        (staging / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
+    return Path(out)
+
+
+def skin_edge_images(optics, skin, lights, *, shape=(256, 512), pixel_um=20.0, noise=1.0, seed=0):
+    """Images of the skin-edge target per band (fractions of full scale; module notes) and the
+    edge's place (column of its crossing of the first row's centre, tilt in degrees)."""
+    from skintopo.synth import make_surface, preset_spec
+    from skintopo.synth.render import sensor
+
+    surface = make_surface(preset_spec("flat-microrelief", size_px=shape, pixel_um=pixel_um), seed=seed)
+    lights = np.asarray(lights, dtype=float)
+    irradiance = np.maximum(np.einsum("rck,mk->rc", surface.normals, lights), 0.0) / len(lights)
+    rows, columns = np.indices(shape, dtype=float)
+    start = 0.3 * shape[1]
+    edge = start + np.tan(np.radians(EDGE_TILT_DEG)) * (rows + 0.5)
+    uncovered = np.clip(columns + 1.0 - edge, 0.0, 1.0)  # the share of each pixel right of the edge (small tilt)
+    mask_radiance = MASK_REFLECTANCE * lights[:, 2].mean()
+    rng = np.random.default_rng(seed)
+    images = {}
+    for band in ("red", "green", "blue"):
+        transport = optics.scattering[band].operator(shape, pixel_um)
+        emitted = optics.albedo[skin][band] * irradiance * uncovered
+        skin_radiance = emitted if transport is None else transport(emitted)
+        linear = uncovered * skin_radiance + (1 - uncovered) * mask_radiance
+        images[band] = sensor(linear, noise=noise, saturate=False, rng=rng)[0]
+    return images, {"edge_column_at_top": start, "tilt_deg": EDGE_TILT_DEG}
+
+
+def write_skin_edge_target(out, optics, skin, lights, *, shape=(256, 512), pixel_um=20.0, seed=0, overwrite=False):
+    """Write ``edge_red.png``, ``edge_green.png``, ``edge_blue.png`` (16-bit) and
+    ``ground_truth.json`` (the optics profile's true diffusion profiles) into the new folder
+    ``out``, all or nothing."""
+    import json
+
+    images, edge = skin_edge_images(optics, skin, lights, shape=shape, pixel_um=pixel_um, seed=seed)
+    with staged_output_folder(out, overwrite=overwrite) as staging:
+        for band, image in images.items():
+            write_png(staging / f"edge_{band}.png", np.round(image * 65535).astype(np.uint16))
+        truth = {"target": "skin-edge", "optics": optics.name, "skin": skin, "pixel_um": pixel_um, "edge": edge,
+                 "scattering": {band: {"weights": list(p.weights), "sigmas_um": list(p.sigmas_um)} for band, p in optics.scattering.items()}}
         (staging / "ground_truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
     return Path(out)
