@@ -49,9 +49,9 @@ def scores(height, surface):
 
 def edge_calibrated_kernels(optics, skin, seed):
     """Kernels from a simulated calibration capture: a black mask's edge on another patch of the
-    same skin (skintopo.synth.targets.skin_edge_images, 256 x 512 at 20 um), through
+    same skin (skintopo.synth.targets.skin_edge_images, 1024 x 512 at 20 um: a 20 mm edge), through
     skintopo.calibration.diffusion_profile_from_edge."""
-    images, _ = skin_edge_images(optics_profile(optics), skin, default_lights(), shape=(256, 512), pixel_um=20.0, seed=1000 + seed)
+    images, _ = skin_edge_images(optics_profile(optics), skin, default_lights(), shape=(1024, 512), pixel_um=20.0, seed=1000 + seed)
     return {band: diffusion_profile_from_edge(images[band], 20.0)[0] for band in ("red", "green", "blue")}
 
 

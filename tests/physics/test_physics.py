@@ -174,7 +174,7 @@ def test_physics_with_kernels_from_an_edge_calibration_capture():
     paper by more than 15%, as with the published profiles themselves."""
     optics = optics_profile("literature")
     surface, images, lights = _simulated("forehead-moderate", "light", seed=3, optics="literature")
-    edges, _ = skin_edge_images(optics, "light", default_lights(), shape=(256, 512), pixel_um=20.0, seed=1003)
+    edges, _ = skin_edge_images(optics, "light", default_lights(), shape=(1024, 512), pixel_um=20.0, seed=1003)
     kernels = {band: diffusion_profile_from_edge(edges[band], 20.0)[0] for band in BANDS}
     found = evaluate_height(physics_height({b: images[b] for b in BANDS}, lights, 20.0, kernels=kernels).height,
                             surface.height)["rms_height_error_um"]
