@@ -457,7 +457,8 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         previous = z
         best = (height, albedo_pattern, specular)
         normals = height_normals(z, spacing)
-        visible = ~np.stack([cast_shadow(z, spacing[1], light) for light in lights])
+        z32 = z.astype(np.float32)  # shadows in single precision (6e-5 um steps at 1 mm of relief): half the memory traffic
+        visible = ~np.stack([cast_shadow(z32, spacing[1], light) for light in lights])
         # the residual of the model this pass's height was made with (its K and s), with the height's own shading
         diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
         residual = [np.ascontiguousarray(fourier.inverse(d - specular_spectrum - a * diffuse)) for d, a in zip(direct_spectra, gain)]
