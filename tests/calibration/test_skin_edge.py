@@ -8,7 +8,11 @@ import numpy as np
 import pytest
 import scipy.fft
 
-from skintopo.calibration import diffusion_profile_from_edge, read_diffusion_profiles, write_diffusion_profiles
+from skintopo.calibration import (
+    diffusion_profile_from_edge,
+    read_diffusion_profiles,
+    write_diffusion_profiles,
+)
 from skintopo.cli import main
 from skintopo.errors import SkinTopoError
 from skintopo.optics import ScatteringProfile, optics_profile

@@ -53,7 +53,11 @@ def run_leds(args):
 
 
 def run_skin(args):
-    from skintopo.calibration import diffusion_profile_from_edge, read_grey_images, write_diffusion_profiles
+    from skintopo.calibration import (
+        diffusion_profile_from_edge,
+        read_grey_images,
+        write_diffusion_profiles,
+    )
     from skintopo.optics import BANDS
     from skintopo.outputs import check_output_file
 
