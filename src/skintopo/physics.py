@@ -437,8 +437,9 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     transfer, gain, fusion = {band: t.astype(np.float32) for band, t in transfer.items()}, gain.astype(np.float32), fusion.astype(np.float32)
     specular_images, specular_spectrum = np.zeros_like(images["red"]), 0.0
     albedo_pattern = np.ones(shape)
-    direct = dict(images)  # I_c - T_c[rho_c v K B_c]: no interreflection known yet
-    direct_spectra = [fourier.forward(direct[band]) for band in REQUIRED_BANDS]  # the transform is linear: F(J - s) = F(J) - F(s)
+    # spectra of the direct images J_c = I_c - T_c[rho_c v K B_c] (no interreflection known yet: I_c);
+    # the transform is linear, F(J - s) = F(J) - F(s)
+    direct_spectra = [fourier.forward(images[band]) for band in REQUIRED_BANDS]
     specular = {"roughness": None, "scale": 0.0}
     changes, residuals = [], []
     previous = best = None
@@ -467,9 +468,9 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         if interreflection:
             gather = _Interreflection(height, radius_um)
             reflectance = albedo_pattern.astype(np.float32)
-            direct = {band: images[band] - fourier.apply(albedo_level[band] * reflectance * gather.gather(images[band] - specular_images),
-                                                         transfer[band]) for band in REQUIRED_BANDS}
-            direct_spectra = [fourier.forward(direct[band]) for band in REQUIRED_BANDS]
+            direct_spectra = [fourier.forward(images[band] - fourier.apply(albedo_level[band] * reflectance
+                                                                           * gather.gather(images[band] - specular_images), transfer[band]))
+                              for band in REQUIRED_BANDS]
         if highlights:
             specular, specular_images = _fit_specular(direct_spectra, gain, fourier, normals, lights, visible)
             specular_spectrum = fourier.forward(specular_images)

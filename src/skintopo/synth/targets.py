@@ -97,7 +97,7 @@ def write_sphere_target(out, kind, lights, *, shape=(240, 320), intensities=None
 
 def skin_edge_images(optics, skin, lights, *, shape=(256, 512), pixel_um=20.0, noise=1.0, seed=0):
     """Images of the skin-edge target per band (fractions of full scale; module notes) and the
-    edge's place (column of its crossing of the first row's centre, tilt in degrees)."""
+    edge's place (the column where it crosses the top of the field, its tilt in degrees)."""
     from skintopo.synth import make_surface, preset_spec
     from skintopo.synth.render import sensor
 
