@@ -26,8 +26,9 @@ because the height map does not over-segment. Steps:
    length in some direction survive the lowest of 48 line-segment closings
    (:func:`straight_valley_depth`), the microrelief's polygons do not; such valleys at least
    ``min_length_um`` long, outside the wrinkles already found, are added
-   (:func:`_straight_valleys`). On random simulated fields this raised the wrinkles found
-   (30 um deep or more) from 84% to 97%, with a false wrinkle in 3% of the fields.
+   (:func:`_straight_valleys`). On 480 random simulated fields (bench_wrinkles) this raised
+   the wrinkles found (30 um deep or more) from 84% to 99.2% (every one of them in 98.5% of
+   the fields), with a false wrinkle in 3.8% of the fields.
 7. Crossing wrinkles (one basin group, so one label) are split, one label per wrinkle
    (:func:`split_crossing_wrinkles`): the skeleton is cut at its junctions and its arms are
    continued by the straightest continuation, through a junction or across a gap.

@@ -64,21 +64,24 @@ def test_depth_width_length_and_volume_of_narrow_and_wide_profiles(shape, width_
 @pytest.mark.slow
 def test_random_fields_on_smooth_skin_within_the_issue_tolerances():
     """Random fields (synth.random_wrinkle_spec: V/U/G, 0.15-1.2 mm wide, 20-300 um deep,
-    straight or arcs down to 5 mm radius), smooth skin, no crossings: every measure of every
-    wrinkle found within the tolerances of issue 17 (5% depths and length, 10% width and
-    volume). Detection is not asserted here: the segmentation misses some shallow narrow
-    wrinkles (here 57 um deep, 0.19 mm wide and 31 um, 0.42 mm; its 0.6 mm band-pass leaves
-    them below its 25 um minimum depth); bench/bench_wrinkles.py counts it, with microrelief
-    and crossing pairs."""
+    straight or arcs down to 5 mm radius), smooth skin, no crossings: all 16 wrinkles found;
+    every measure of every wrinkle at least 30 um deep (the issue's detection bar) within the
+    tolerances of issue 17 (5% depths and length, 10% width and volume), among them a 57 um
+    deep, 0.19 mm wide V and a 31 um, 0.42 mm U found only as straight valleys. Shallower
+    wrinkles: max depth within 5%. Their half-depth region is kept within 0.75 mm of the
+    points deeper than the 25 um minimum, so a curved one is measured short: the 28 um deep,
+    0.48 mm wide U of radius 6.7 mm (seed 4) reads 2.35 of 2.71 mm (-13%), its volume -11%
+    (bench/bench_wrinkles.py: on smooth skin 3 of 327 wrinkles outside a tolerance)."""
     failures, measured = [], 0
     for seed in range(8):
         surface = make_surface(random_wrinkle_spec(np.random.default_rng(1000 + seed), microrelief=False), seed=seed)
-        for index, e in enumerate(relative_errors(surface, require_all=False)[1]):
+        for wrinkle, e in zip(surface.spec.wrinkles, relative_errors(surface, require_all=False)[1]):
             if e is None:
                 continue
             measured += 1
-            failures += [(seed, index, name, round(e[name], 3)) for name, tolerance in TOLERANCES.items() if abs(e[name]) > tolerance]
-    assert measured >= 12 and not failures
+            checked = TOLERANCES if wrinkle.depth_um >= 30 else {"max_depth_um": TOLERANCES["max_depth_um"]}
+            failures += [(seed, wrinkle.depth_um, name, round(e[name], 3)) for name, tolerance in checked.items() if abs(e[name]) > tolerance]
+    assert measured == 16 and not failures
 
 
 def test_mean_depth_never_exceeds_max_depth():
