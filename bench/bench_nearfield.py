@@ -17,7 +17,10 @@ Speed: 12 images (3 bands x 4 LEDs) of 1000 x 1000 through the near-field solver
 distant-light one (normals + integration per band).
 
 Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``;
-``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json).
+``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json);
+``--per-effect`` scores ideal and near-field with each of the skin's effects alone (and the
+highlights with the cross-band separation), to find which one makes the near-field gap
+(nearfield-SIZE-per-effect.json).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band].json.
 """
 
@@ -28,6 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import scipy.ndimage
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 from skintopo.device import paper_device
@@ -64,6 +68,49 @@ def scores(height: HeightMap, truth: HeightMap):
         "radius_error_percent": 100 * (radius_um / 1000 / RADIUS_MM - 1),
         "valid_fraction": float(valid.mean()),
     }
+
+
+def split_after_form(height: HeightMap, truth: HeightMap, wavelength_um=2600.0):
+    """The after-form error (:func:`scores`) split at ``wavelength_um``: (RMS of its Gaussian
+    low-pass with sigma = wavelength / (2 pi), RMS of the rest), um: the forehead's form
+    error against the wrinkle band."""
+    error = height.z - truth.z
+    valid = np.isfinite(error) & height.mask
+    residual = np.where(valid, error - polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid), 0.0)
+    low = scipy.ndimage.gaussian_filter(residual, wavelength_um / (2 * np.pi) / truth.spacing[0])
+    return float(np.sqrt(np.mean(low[valid] ** 2))), float(np.sqrt(np.mean((residual - low)[valid] ** 2)))
+
+
+def per_effect(size):
+    """Ideal and near-field red heights with one effect of the skin profile at a time."""
+    device, surface = device_scene(size)
+    crop = camera_grid_surface(surface, device)
+    truth, lights = crop.height, device.central_directions()
+    alone = {"cast shadows": Effects(interreflection=False, specular=False, translucency=False, albedo_variation=False),
+             "translucency": Effects(shadows=False, interreflection=False, specular=False, albedo_variation=False),
+             "albedo variation": Effects(shadows=False, interreflection=False, specular=False, translucency=False),
+             "highlights": Effects(shadows=False, interreflection=False, translucency=False, albedo_variation=False)}
+    cases = [(name, effects, "none") for name, effects in alone.items()]
+    cases += [("highlights", alone["highlights"], "cross-band"), ("skin (all but interreflection)", EFFECTS["skin"], "cross-band")]
+    rows = []
+    for name, effects, highlights in cases:
+        settings = RenderSettings(effects=effects, noise=1.0)
+        bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
+        ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
+        red, ideal_red = bands["red"], ideal_bands["red"][0]
+        if highlights == "cross-band":
+            red = red - separate_specular(*(bands[b] / info["exposure_gain"][b] for b in RGB)).specular * info["exposure_gain"]["red"]
+            ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
+                * ideal_info["exposure_gain"]["red"]
+        ideal = distant_reconstruction(ideal_red, lights, truth.spacing)
+        near = near_field_photometric_stereo(red, device, "red")
+        row = {"effect": name, "highlights": highlights, "photometric_scale_of_working_distance": near.scales[-1]}
+        for key, height in (("ideal", ideal), ("near_field", near.height)):
+            row[key] = scores(height, truth)
+            row[key]["after_form_longer_than_2.6mm_um"], row[key]["after_form_shorter_um"] = split_after_form(height, truth)
+        rows.append(row)
+        print(name, highlights, round(row["ideal"]["rms_after_form_um"], 2), round(row["near_field"]["rms_after_form_um"], 2), flush=True)
+    write_result(f"nearfield-{size}-per-effect", {"device": device.describe(), "size_px": size, "band": "red", "rows": rows})
 
 
 def distant_reconstruction(images, lights, spacing):
@@ -106,9 +153,12 @@ def main():
     parser.add_argument("--highlights", choices=["none", "cross-band"], default="none",
                         help="cross-band: every reconstruction solves the dichromatic diffuse images (images minus their specular part)")
     parser.add_argument("--mitsuba", action="store_true", help="the comparison on Mitsuba 3 renders instead (mitsuba-SIZE.json)")
+    parser.add_argument("--per-effect", action="store_true", help="each skin effect alone (nearfield-SIZE-per-effect.json)")
     args = parser.parse_args()
     if args.mitsuba:
         return mitsuba_check(args.size)
+    if args.per_effect:
+        return per_effect(args.size)
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
     start = time.perf_counter()
