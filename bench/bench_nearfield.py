@@ -19,8 +19,8 @@ distant-light one (normals + integration per band).
 Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``;
 ``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json);
 ``--per-effect`` scores ideal and near-field with each of the skin's effects alone (and the
-highlights with the cross-band separation), to find which one makes the near-field gap
-(nearfield-SIZE-per-effect.json).
+highlights with the cross-band separation, and removed exactly), to find which one makes the
+near-field gap (nearfield-SIZE-per-effect.json).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band].json.
 """
 
@@ -91,13 +91,20 @@ def per_effect(size):
              "albedo variation": Effects(shadows=False, interreflection=False, specular=False, translucency=False),
              "highlights": Effects(shadows=False, interreflection=False, translucency=False, albedo_variation=False)}
     cases = [(name, effects, "none") for name, effects in alone.items()]
-    cases += [("highlights", alone["highlights"], "cross-band"), ("skin (all but interreflection)", EFFECTS["skin"], "cross-band")]
+    cases += [("highlights", alone["highlights"], "cross-band"), ("skin (all but interreflection)", EFFECTS["skin"], "cross-band"),
+              ("skin (all but interreflection)", EFFECTS["skin"], "removed exactly")]
     rows = []
     for name, effects, highlights in cases:
         settings = RenderSettings(effects=effects, noise=1.0)
         bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
         ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
         red, ideal_red = bands["red"], ideal_bands["red"][0]
+        if highlights == "removed exactly":  # what a perfect separation would leave: the same renders without specular light
+            diffuse = replace(settings, effects=replace(effects, specular=False))
+            red, diffuse_info = simulate_device_acquisition(surface, device, diffuse, seed=1)
+            red = red["red"] * info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
+            ideal_red, diffuse_info = simulate_acquisition(crop, replace(diffuse, lights=lights), seed=1)
+            ideal_red = ideal_red["red"][0] * ideal_info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
         if highlights == "cross-band":
             red = red - separate_specular(*(bands[b] / info["exposure_gain"][b] for b in RGB)).specular * info["exposure_gain"]["red"]
             ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
