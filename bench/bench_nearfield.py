@@ -54,15 +54,21 @@ def device_scene(size, seed=1):
     return device, device_surface(spec, device, seed=seed)
 
 
-def scores(height: HeightMap, truth: HeightMap):
+def height_error(height: HeightMap, truth: HeightMap):
+    """(error, valid, after form): the height error (NaN where either is missing), where it is
+    valid, and the error minus its own least-squares quadratic (the truth is not processed)."""
     error = height.z - truth.z
     valid = np.isfinite(error) & height.mask
     error = np.where(valid, error, np.nan)
-    form = polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid)
+    return error, valid, error - polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid)
+
+
+def scores(height: HeightMap, truth: HeightMap):
+    error, valid, after_form = height_error(height, truth)
     radius_um, _ = sphere_fit(height)
     return {
         "rms_raw_um": float(np.sqrt(np.nanmean((error - np.nanmean(error)) ** 2))),
-        "rms_after_form_um": float(np.sqrt(np.nanmean((error - form)[valid] ** 2))),
+        "rms_after_form_um": float(np.sqrt(np.nanmean(after_form[valid] ** 2))),
         "mean_offset_um": float(np.nanmean(error)),
         "radius_mm": radius_um / 1000,
         "radius_error_percent": 100 * (radius_um / 1000 / RADIUS_MM - 1),
@@ -74,11 +80,17 @@ def split_after_form(height: HeightMap, truth: HeightMap, wavelength_um=2600.0):
     """The after-form error (:func:`scores`) split at ``wavelength_um``: (RMS of its Gaussian
     low-pass with sigma = wavelength / (2 pi), RMS of the rest), um: the forehead's form
     error against the wrinkle band."""
-    error = height.z - truth.z
-    valid = np.isfinite(error) & height.mask
-    residual = np.where(valid, error - polynomial_form(np.where(valid, error, 0.0), truth.spacing, order=2, mask=valid), 0.0)
+    _, valid, after_form = height_error(height, truth)
+    residual = np.where(valid, after_form, 0.0)
     low = scipy.ndimage.gaussian_filter(residual, wavelength_um / (2 * np.pi) / truth.spacing[0])
     return float(np.sqrt(np.mean(low[valid] ** 2))), float(np.sqrt(np.mean((residual - low)[valid] ** 2)))
+
+
+def red_without_specular(images, exposure_gain):
+    """The red images minus the specular part that the cross-band separation finds in
+    ``images`` (band -> stack of images, in each band's exposure units)."""
+    separation = separate_specular(*(images[b] / exposure_gain[b] for b in RGB))
+    return images["red"] - separation.specular * exposure_gain["red"]
 
 
 def per_effect(size):
@@ -106,9 +118,8 @@ def per_effect(size):
             ideal_red, diffuse_info = simulate_acquisition(crop, replace(diffuse, lights=lights), seed=1)
             ideal_red = ideal_red["red"][0] * ideal_info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
         if highlights == "cross-band":
-            red = red - separate_specular(*(bands[b] / info["exposure_gain"][b] for b in RGB)).specular * info["exposure_gain"]["red"]
-            ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
-                * ideal_info["exposure_gain"]["red"]
+            red = red_without_specular(bands, info["exposure_gain"])
+            ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"])
         ideal = distant_reconstruction(ideal_red, lights, truth.spacing)
         near = near_field_photometric_stereo(red, device, "red")
         row = {"effect": name, "highlights": highlights, "photometric_scale_of_working_distance": near.scales[-1]}
@@ -180,9 +191,8 @@ def main():
               "forehead_radius_mm": RADIUS_MM, "seconds_render": seconds_render, "band": "red"}
     red, ideal_red = bands["red"], ideal_bands["red"][0]
     if args.highlights == "cross-band":
-        red = red - separate_specular(*(bands[b] / info["exposure_gain"][b] for b in RGB)).specular * info["exposure_gain"]["red"]
-        ideal_red = ideal_red - separate_specular(*(ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB)).specular \
-            * ideal_info["exposure_gain"]["red"]
+        red = red_without_specular(bands, info["exposure_gain"])
+        ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"])
     result["highlights"] = args.highlights
     result["ideal"] = scores(distant_reconstruction(ideal_red, lights, truth.spacing), truth)
     near = near_field_photometric_stereo(red, device, "red")
