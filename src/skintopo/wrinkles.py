@@ -68,6 +68,10 @@ DEFAULT_REFERENCE_CUTOFF_UM = REFERENCE_CUTOFF_UM  # the surrounding skin level,
 DEFAULT_MARGIN_UM = REFERENCE_MARGIN_UM
 PLATEAU_DIRECTIONS_DEG = (0.0, 45.0, 90.0, 135.0)
 PROFILE_SMOOTHING_UM = 250.0  # the floor depth is averaged over this to find the ends at half depth
+# The ends are found on the smallest depth at t = 0 and t = +-(this fraction of the half-depth
+# width): a microrelief furrow running on from a wrinkle's end is deep on its own line but not
+# a quarter of the wrinkle's width beside it (shallow wrinkles read 5-30% too long)
+ENDS_ACROSS_FRACTION = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,14 +261,24 @@ def depth_in_frame(frame: WrinkleFrame, z_spline, reference, plateau, around, ot
     return frame.sample(reference) - (closed + left_by_along), inside
 
 
-def floor_profile(frame: WrinkleFrame, depth, inside, smoothing_um):
+def floor_profile(frame: WrinkleFrame, depth, inside, smoothing_um, across_um=0.0):
     """The depth on the centre line (t = 0) averaged along s over ``smoothing_um`` (what the
     closing and the reference leave of the roughness is noise that a threshold would cross
-    back and forth); -inf where the centre line is not inside the wrinkle."""
+    back and forth); -inf where the centre line is not inside the wrinkle. ``across_um``: the
+    smallest of the depths at t = 0 and t = +-``across_um`` instead (linear between samples;
+    a side outside the wrinkle, e.g. in one it crosses, is left out)."""
     centre = int(np.abs(frame.t).argmin())
     valid = inside[centre]
     n = _samples(smoothing_um, frame)
-    total = scipy.ndimage.uniform_filter1d(np.where(valid, depth[centre], 0.0), n, mode="nearest")
+    floor = depth[centre]
+    if across_um > 0:
+        for side in (-1, 1):
+            position = np.clip(centre + side * across_um / frame.step_um, 0, frame.t.size - 1)
+            low = min(int(position), frame.t.size - 2)
+            fraction = position - low
+            beside = np.where(inside[low] & inside[low + 1], (1 - fraction) * depth[low] + fraction * depth[low + 1], np.inf)
+            floor = np.minimum(floor, beside)
+    total = scipy.ndimage.uniform_filter1d(np.where(valid, floor, 0.0), n, mode="nearest")
     share = scipy.ndimage.uniform_filter1d(valid.astype(float), n, mode="nearest")
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(valid & (share > 0), total / share, -np.inf)
@@ -553,18 +567,28 @@ class WrinkleProperties:
 
     @cached_property
     def _ends(self):
-        """Indices along s of the first and last samples at half depth or deeper, and that level."""
-        profile = self._measured[3]
-        threshold = self._field.settings.depth_fraction * float(profile.max())
+        """Indices along s of the first and last samples at half depth or deeper, that level, and
+        the profile they are read on: the floor profile of the smallest depth at t = 0 and
+        t = +-``ENDS_ACROSS_FRACTION`` of the median half-depth width (of the samples at half
+        depth or deeper on the centre line's own profile). For a wrinkle d = D e(s) f(t) the
+        ends are those of the centre line's profile; a furrow narrower than half the wrinkle's
+        half-depth width that runs on from an end does not carry it on."""
+        frame, depth, inside, profile = self._measured
+        fraction = self._field.settings.depth_fraction
+        lower, upper = cross_section_edges(frame, depth, fraction * np.where(np.isfinite(profile), profile, 0.0))
+        deep = np.isfinite(profile) & (profile >= fraction * profile.max())
+        across = ENDS_ACROSS_FRACTION * float(np.median((upper - lower)[deep]))
+        profile = floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM, across)
+        threshold = fraction * float(profile.max())
         deep = np.flatnonzero(profile >= threshold)
-        return deep[0], deep[-1], threshold
+        return deep[0], deep[-1], threshold, profile
 
     @cached_property
     def length_mm(self):
         """Arc length between the ends at half depth, each interpolated between the last
         sample above and the first below."""
-        frame, profile = self.frame, self._measured[3]
-        first, last, threshold = self._ends
+        frame = self.frame
+        first, last, threshold, profile = self._ends
         length = frame.s[last] - frame.s[first]
         for end, outward in ((first, -1), (last, 1)):
             beyond = end + outward
@@ -578,7 +602,7 @@ class WrinkleProperties:
         depth on it: where the line crosses another wrinkle or leaves the field, both are
         interpolated along s from the samples on either side."""
         frame, depth, inside, profile = self._measured
-        first, last, _ = self._ends
+        first, last, _, _ = self._ends
         on_line = slice(first, last + 1)
         centre = int(np.abs(frame.t).argmin())
         on = np.flatnonzero(inside[centre, on_line])
@@ -674,7 +698,7 @@ class WrinkleProperties:
     def trace(self) -> WrinkleTrace:
         """Where the wrinkle was measured, in pixel coordinates of the whole map."""
         frame, depth = self.frame, self._measured[1]
-        first, last, _ = self._ends
+        first, last, _, _ = self._ends
         on_line, _, floor_depth = self._line
         lower, upper = self._edges
         box = self._box[0]
