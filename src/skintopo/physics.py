@@ -73,7 +73,7 @@ from skintopo.filters import bilinear_resize, polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
-from skintopo.normals import DEFAULT_SOLVER, photometric_stereo
+from skintopo.normals import DEFAULT_SOLVER, SpecularLobe, photometric_stereo
 from skintopo.transport import cast_shadow, interreflection_operator
 
 REQUIRED_BANDS = ("red", "green", "blue")
@@ -292,31 +292,6 @@ class _Filter:
         return self.inverse(self.forward(stack) * transfer)
 
 
-class SpecularLobe:
-    """Microfacet lobe D(n . h; m) / (n . v) per light, v = (0, 0, 1), zero where n . l <= 0
-    or where ``visible`` is False; call it with a roughness m for the (lights, rows, columns)
-    stack.
-
-    D = exp(-tan^2 alpha / m^2) / (m^2 cos^4 alpha) (Beckmann, without its 1/pi, which the
-    fitted scale takes), alpha the angle between n and the half vector h of l and v. The
-    geometry (tan^2 alpha and the factor that does not depend on m) is computed once, so a
-    search over m costs one exponential per candidate. Single precision (the lobe feeds the
-    single-precision Fourier passes; 1 - cos^2 near the peak keeps about 1e-7).
-    """
-
-    def __init__(self, normals, lights, visible=True):
-        normals, lights = np.asarray(normals, dtype=np.float32), np.asarray(lights, dtype=np.float32)
-        view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
-        halves = (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
-        cosine = np.clip(np.einsum("rck,mk->mrc", normals, halves), 1e-6, 1.0)
-        self.tan2 = (1 - cosine**2) / cosine**2
-        lit = (np.einsum("rck,mk->mrc", normals, lights) > 0) & visible
-        self.factor = np.where(lit, 1.0 / (cosine**4 * np.clip(normals[..., 2], 0.2, 1.0)), 0.0)
-
-    def __call__(self, roughness):
-        return np.exp(self.tan2 * np.float32(-1.0 / roughness**2)) * (self.factor / np.float32(roughness**2))
-
-
 class _Interreflection:
     """K of the current height, on a grid of at most MAX_INTERREFLECTION_PIXELS (block means;
     interreflection varies over the wrinkle's width, far more slowly than the microrelief)."""
@@ -445,7 +420,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     previous = best = None
     for k, _ in enumerate(progress([f"iteration {n}" for n in range(1, iterations + 1)]), start=1):  # ends early once converged
         shading = fourier.inverse(sum(weight * (d - specular_spectrum) for weight, d in zip(fusion, direct_spectra)))
-        stereo = photometric_stereo(shading, lights, mask=mask, solver=solver)
+        stereo = photometric_stereo(shading, lights, mask=mask, solver=solver, specular_lobe=False)  # its highlights are modelled here
         albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
         height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
                                    method=integrator)

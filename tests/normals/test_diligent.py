@@ -36,7 +36,9 @@ def test_least_squares_on_ball_meets_published_figure(diligent_ball):
         assert np.isfinite(error).all()
         errors[band] = float(error.mean())
     print("DiLiGenT ball, mean angular error (deg), all 96 lights:", {b: round(e, 3) for b, e in errors.items()})
-    assert errors["white"] <= 3.0  # the published least-squares baseline is 4.10
+    # the published least-squares baseline is 4.10; the shadow rule alone gave 2.90, with the
+    # specular lobe fitted (96 lights) 2.27
+    assert errors["white"] <= 2.5
     # Per channel the published plain least-squares values are 4.07 / 4.15 / 4.88; excluding
     # saturated and shadowed observations must not do worse than them.
     assert errors["red"] <= 4.07 and errors["green"] <= 4.15 and errors["blue"] <= 4.88
@@ -48,7 +50,7 @@ def test_plain_least_squares_reproduces_the_published_per_channel_numbers(dilige
     truth = scipy.io.loadmat(diligent_ball / "Normal_gt.mat")["Normal_gt"]
     for band, published in (("red", 4.07), ("green", 4.15), ("blue", 4.88)):
         images = acquisition.bands[band]
-        result = photometric_stereo(images.images, images.lights, mask=acquisition.mask, shadow_fraction=0.0)
+        result = photometric_stereo(images.images, images.lights, mask=acquisition.mask, shadow_fraction=0.0, specular_lobe=False)
         error = angular_error_degrees(result.normals, truth)[acquisition.mask].mean()
         assert error == pytest.approx(published, abs=0.01), band
 
@@ -67,5 +69,5 @@ def test_robust_solver_on_ball(diligent_ball):
             errors[count, solver] = (float(np.nanmean(error)), float(np.isnan(error).mean()))
     for (count, solver), (mean, invalid) in errors.items():
         print(f"DiLiGenT ball, white, {count:2d} lights, {solver:>13}: {mean:.3f} deg ({100 * invalid:.1f}% invalid)")
-    assert errors[96, "robust"][0] <= 2.1
+    assert errors[96, "robust"][0] <= 2.0  # 2.06 without the specular lobe, 1.87 with it
     assert errors[12, "robust"][0] < errors[12, "least-squares"][0]
