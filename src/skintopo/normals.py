@@ -211,7 +211,7 @@ DEFAULT_ROBUST_THRESHOLD = 0.02
 HIGHLIGHT_EXCESS = 0.3  # few lights: a tied observation is dropped as a highlight only this far (x albedo) above the others' fit
 SPECULAR_LOBE_MIN_LIGHTS = 6  # the lobe adds one unknown to the three of g: below this, too few observations left to judge it
 LOBE_ROUGHNESS_GRID = (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5)  # Beckmann m searched
-LOBE_ITERATIONS = 4  # lobe (from the normals) <-> normals passes
+LOBE_ITERATIONS = 3  # lobe (from the normals) <-> normals passes (2, 3, 4 on bench_shiny's coated cases: mean default 4.75, 4.54, 4.56 deg, robust 1.52, 1.37, 1.75)
 LOBE_NEWTON_STEPS = 2  # Gauss-Newton steps of g and S together after the linear fits
 LOBE_MAX_OVER_BRIGHTEST = 2.0  # a fitted specular part larger than this times the brightest observation is refused
 LOBE_BLOCK_PIXELS = 16384  # pixels fitted together (12 lights: 0.8 MB per array)
@@ -287,17 +287,17 @@ def _gauss_newton_step(solution, scale, intensity, weight, lights, roughness):
     jacobian.append(phi.astype(np.float64))
     residual = weight * (intensity - lights @ solution.astype(np.float32) - scale.astype(np.float32) * phi)
     weighted = [weight * column for column in jacobian]
-    matrix = np.empty((solution.shape[1], 4, 4))
-    with np.errstate(invalid="ignore", over="ignore"):
-        for a in range(4):
-            for b in range(a, 4):
-                matrix[:, a, b] = matrix[:, b, a] = (weighted[a] * jacobian[b]).sum(axis=0)
-        right = np.stack([(column * residual).sum(axis=0) for column in jacobian], axis=1)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        matrix += 1e-9 * np.trace(matrix, axis1=1, axis2=2)[:, None, None] * np.eye(4)
-        finite = np.isfinite(matrix).all(axis=(1, 2)) & np.isfinite(right).all(axis=1)
-        step = np.full((solution.shape[1], 4), np.nan)
-        step[finite] = np.linalg.solve(matrix[finite], right[finite][..., None])[..., 0]
+        # the symmetric 4 x 4 normal equations [A b; b^T c] [dg; dS] = [r; t], solved by the
+        # Schur complement as in the linear fit (no batched general solver: 5x faster)
+        upper = [(weighted[a] * jacobian[b]).sum(axis=0) for a, b in _UPPER]
+        cross = [(weighted[a] * jacobian[3]).sum(axis=0) for a in range(3)]
+        right = [(column * residual).sum(axis=0) for column in jacobian]
+        first, _ = solve_symmetric_3x3(upper, right[:3])
+        along, _ = solve_symmetric_3x3(upper, cross)
+        remainder = (weighted[3] * jacobian[3]).sum(axis=0) - sum(c * a for c, a in zip(cross, along))
+        scale_step = (right[3] - sum(c * f for c, f in zip(cross, first))) / remainder
+        step = np.concatenate([(first - scale_step * along).T, scale_step[:, None]], axis=1)
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         trial = solution + np.nan_to_num(step[:, :3].T)
         trial_scale = np.maximum(scale + np.nan_to_num(step[:, 3]), 0.0)
