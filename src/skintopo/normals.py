@@ -24,6 +24,15 @@ without the brightest observation is free of it. Pixels whose observations
 are all usable share one pseudo-inverse; the others solve their own 3 x 3 normal equations
 S^T W S g = S^T W I with W the 0/1 weights, all at once (no loop over pixels). A pixel left
 with fewer than 3 lights, or with lights that no longer span 3-D, is invalid (NaN).
+
+Specular lobe (6 lights or more, ``specular_lobe=True``): a shiny surface adds to the
+Lambertian part a lobe around the mirror direction, which bends the least-squares normal
+toward the lights it comes from; a broad lobe (a sheen) touches every observation, so no
+exclusion can remove it. Each pixel is then fitted as I_i = g . l_i + S D(n . h_i; m) / (n . v)
+(Beckmann facet distribution D, h_i the half vector of light i and the view v), S >= 0 per
+pixel and one roughness m for the field (:func:`_fit_specular_lobe`). With 4 lights the lobe's
+unknown would leave no redundancy, so none is fitted there. Measured: DiLiGenT ball, white,
+96 lights, 2.90 -> 2.28 degrees; numbers on rendered coats in docs/method.md.
 """
 
 from __future__ import annotations
