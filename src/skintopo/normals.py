@@ -356,11 +356,7 @@ def _fit_specular_lobe(observed, candidates, usable, lights, g, *, readmit):
         block = pixels[start : start + LOBE_BLOCK_PIXELS]
         solution, weight, part, _ = _lobe_fit(observed[:, block], candidates[:, block], usable[:, block], lights32, g[:, block], readmit,
                                               roughness)
-        good = block[np.isfinite(solution).all(axis=0)]
-        kept = np.isin(block, good)
-        g[:, good] = solution[:, kept].astype(np.float32)
-        usable[:, good] = weight[:, kept]
-        specular[:, good] = part[:, kept]
+        g[:, block], usable[:, block], specular[:, block] = solution, weight, part  # a pixel it could not fit keeps its g
     return g, usable, specular, float(roughness)
 
 
