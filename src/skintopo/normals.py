@@ -229,6 +229,13 @@ LOBE_IDENTIFIABLE = 1e-3  # S is fitted only where this share of the lobe's powe
 LOBE_SAMPLE_PIXELS = 65536  # the roughness is chosen on at most about this many pixels (every k-th)
 
 
+def _half_vectors(lights):
+    """Unit half vectors h_i of each light l_i and the view v = (0, 0, 1), single precision."""
+    lights = np.asarray(lights, dtype=np.float32)
+    view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
+    return (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
+
+
 class SpecularLobe:
     """Microfacet lobe D(n . h; m) / (n . v) per light, v = (0, 0, 1), zero where n . l <= 0
     or where ``visible`` is False; call it with a roughness m for the (lights, rows, columns)
@@ -244,8 +251,7 @@ class SpecularLobe:
 
     def __init__(self, normals, lights, visible=True):
         normals, lights = np.asarray(normals, dtype=np.float32), np.asarray(lights, dtype=np.float32)
-        view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
-        halves = (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
+        halves = _half_vectors(lights)
         cosine = np.clip(np.einsum("rck,mk->mrc", normals, halves), 1e-6, 1.0)
         self.tan2 = (1 - cosine**2) / cosine**2
         lit = (np.einsum("rck,mk->mrc", normals, lights) > 0) & visible
@@ -270,18 +276,16 @@ def _sum_of_squares(values):
     return np.add.reduce(values * values, axis=0)
 
 
-def _gauss_newton_step(solution, scale, intensity, weight, lights, roughness):
+def _gauss_newton_step(solution, scale, phi, intensity, weight, lights, roughness):
     """One Gauss-Newton step of the lobe model I_i = g . l_i + S phi_i(n), n = g / |g|, for
     g and S together (the lobe moves with the normal: d phi_i / d g = phi_i (2 / (m^2 c^3) -
     4 / c) (I - n n^T) h_i / |g|, c = n . h_i, and the 1 / n_z factor's term); S kept >= 0,
     and a pixel's step kept only where it lowers its residual (a sharp lobe is far from linear
-    in n: unguarded steps diverged on sharp simulated highlights). Returns g, S and the lobe
-    phi at the kept normals."""
+    in n: unguarded steps diverged on sharp simulated highlights). ``phi``: the lobe at the
+    normals of ``solution``. Returns g, S and the lobe phi at the kept normals."""
     albedo = np.linalg.norm(solution, axis=0)
     normal = (solution / albedo).astype(np.float32)  # (3, pixels)
-    view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
-    halves = (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
-    phi = SpecularLobe(normal.T[None], lights)(roughness)[:, 0]
+    halves = _half_vectors(lights)
     cosine = np.clip(halves @ normal, 0.1, 1.0)  # beyond 84 degrees from h the lobe is nil (exp(-99 / m^2))
     rate = phi * (np.float32(2 / roughness**2) / cosine**3 - 4 / cosine)  # d phi / d c
     facing = (normal[2] > 0.2) & (normal[2] < 1.0)  # where phi's 1 / n_z factor is not clipped
@@ -378,7 +382,7 @@ def _lobe_fit(intensity, allowed, weight, lights, g, readmit, roughness=None):
         for candidate in LOBE_ROUGHNESS_GRID:
             phi = lobes(candidate)[:, 0] * allowed
             scale = np.maximum(total(phi * excess) / np.maximum(total(phi * phi), 1e-30), 0.0).astype(np.float32)
-            misfit.append(float(total((excess - scale * phi) ** 2).sum()))
+            misfit.append(float(_sum_of_squares(excess - scale * phi).sum()))
         return LOBE_ROUGHNESS_GRID[int(np.argmin(misfit))]
 
     upper = np.stack([lights[:, i] * lights[:, j] for i, j in _UPPER])  # (6, m)
@@ -407,8 +411,9 @@ def _lobe_fit(intensity, allowed, weight, lights, g, readmit, roughness=None):
             closer = allowed & (np.abs(intensity - model) <= np.float32(LOBE_READMIT) * albedo)
             weight = np.where(closer.sum(axis=0) >= SPECULAR_LOBE_MIN_LIGHTS, closer, weight)
     w = weight.astype(np.float32)
+    phi = lobe_of(solution)(roughness)[:, 0]  # the linear fit's lobe was that of the normals before it
     for _ in range(LOBE_NEWTON_STEPS):
-        solution, scale, phi = _gauss_newton_step(solution, scale, intensity, w, lights, roughness)
+        solution, scale, phi = _gauss_newton_step(solution, scale, phi, intensity, w, lights, roughness)
     # S was fitted to the lobe of the normals before the last update: where the lobe of the
     # final normals makes an implausible specular part, the pixel keeps its Lambertian fit
     kept = np.isfinite(solution).all(axis=0) & _plausible_lobe(scale, phi, intensity, w)

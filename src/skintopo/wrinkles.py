@@ -302,6 +302,14 @@ def cross_section_edges(frame: WrinkleFrame, depth, level):
     return _crossing(depth, level, centre, frame.t, -1), _crossing(depth, level, centre, frame.t, +1)
 
 
+def deep_cross_sections(frame: WrinkleFrame, depth, profile, depth_fraction):
+    """(lower, upper, deep): the edges (um) of each cross-section at ``depth_fraction`` of the
+    floor ``profile`` there, and where the floor is at that fraction of its deepest or
+    deeper (the cross-sections whose edges belong to the wrinkle)."""
+    lower, upper = cross_section_edges(frame, depth, depth_fraction * np.where(np.isfinite(profile), profile, 0.0))
+    return lower, upper, np.isfinite(profile) & (profile >= depth_fraction * profile.max())
+
+
 def midline(frame: WrinkleFrame, depth, profile, depth_fraction, extension_um):
     """The middle of the wrinkle's half-depth cross-sections (pixels, in order along the
     first centre line's arc, not its extensions): the centre line. Median-filtered, then
@@ -309,8 +317,7 @@ def midline(frame: WrinkleFrame, depth, profile, depth_fraction, extension_um):
     does not pull it. The skeleton of the half-depth region is a fraction of a pixel off
     the middle, and a closing along a line that is off a narrow floor lifts it."""
     line = (frame.s >= 0) & (frame.s <= frame.s[-1] - extension_um)
-    lower, upper = cross_section_edges(frame, depth, depth_fraction * np.where(np.isfinite(profile), profile, 0.0))
-    deep = np.isfinite(profile) & (profile >= depth_fraction * profile.max())
+    lower, upper, deep = deep_cross_sections(frame, depth, profile, depth_fraction)
     middle = 0.5 * (lower + upper)
     offset = np.interp(frame.s, frame.s[deep], middle[deep]) if deep.any() else np.zeros(frame.s.size)
     n = _samples(extension_um, frame)
@@ -581,8 +588,7 @@ class WrinkleProperties:
         half-depth width that runs on from an end does not carry it on."""
         frame, depth, inside, profile = self._measured
         fraction = self._field.settings.depth_fraction
-        lower, upper = cross_section_edges(frame, depth, fraction * np.where(np.isfinite(profile), profile, 0.0))
-        deep = np.isfinite(profile) & (profile >= fraction * profile.max())
+        lower, upper, deep = deep_cross_sections(frame, depth, profile, fraction)
         across = ENDS_ACROSS_FRACTION * float(np.median((upper - lower)[deep]))
         profile = floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM, across)
         threshold = fraction * float(profile.max())
