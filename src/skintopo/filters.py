@@ -60,69 +60,81 @@ def gaussian_transmission(wavelength_um, cutoff_um):
 _FFT_SIGMA_PX = 2.0
 
 
-def _fft_plan(shape, sigmas):
-    """FFT lengths (each axis padded by 4 sigma, so nothing wraps around into the data) and
-    the Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) along each axis (rows: full
-    spectrum, columns: half spectrum, as ``rfft2`` lays them out)."""
-    pad = [int(np.ceil(_TRUNCATE * s)) for s in sigmas]
-    lengths = [scipy.fft.next_fast_len(n + 2 * p, real=True) for n, p in zip(shape, pad)]
-    transfer_rows = np.exp(-2 * np.pi**2 * (sigmas[0] * scipy.fft.fftfreq(lengths[0])) ** 2)
-    transfer_columns = np.exp(-2 * np.pi**2 * (sigmas[1] * scipy.fft.rfftfreq(lengths[1])) ** 2)
-    return lengths, transfer_rows, transfer_columns
+def _fft_lengths(shape, sigmas):
+    """FFT lengths of a Gaussian filtering of an image of ``shape``: each axis padded by 4
+    sigma, so that nothing wraps around into the data."""
+    return [scipy.fft.next_fast_len(n + 2 * int(np.ceil(_TRUNCATE * s)), real=True) for n, s in zip(shape, sigmas)]
 
 
-def gaussian_smooth(images, sigmas, out=None):
-    """Separable Gaussian smoothing of several same-shaped images, zero outside the field.
+def _moment_kernel(sigma, order):
+    """The sampled kernel d^order g(d), d = -r..r (r = 4 sigma rounded), g the Gaussian
+    normalised to unit sum (scipy.ndimage.gaussian_filter1d's kernel for order 0)."""
+    radius = int(_TRUNCATE * sigma + 0.5)
+    d = np.arange(-radius, radius + 1, dtype=float)
+    g = np.exp(-0.5 / sigma**2 * d**2)
+    return d**order * (g / g.sum())
 
-    Narrow kernels: direct convolution (truncated at 4 sigma). Wide ones: an FFT with the
-    Gaussian's transfer function exp(-2 pi^2 sigma^2 f^2) on a grid padded by 4 sigma (so
-    nothing wraps around), whose cost does not grow with the kernel. ``images``: an array
-    (..., rows, columns), or any iterable of same-shaped images with ``out`` (k, rows,
-    columns) to write into (a generator then makes each image only when it is smoothed).
-    Images are smoothed one at a time: a batch's padded spectra would hold a complex copy of
-    the field per image at once (about 5 GiB for the ISO filter's 9 moments at 20 MP).
+
+def _moment_transfer(sigma, frequency, order):
+    """Transfer function of the convolution that gives sum_x' (x' - x)^order g(x' - x) f(x'),
+    g the Gaussian of standard deviation ``sigma`` (pixels), at ``frequency`` (cycles per
+    pixel), G(f) = exp(-2 pi^2 sigma^2 f^2): G for order 0, 2 pi i sigma^2 f G for order 1,
+    sigma^2 (1 - 4 pi^2 sigma^2 f^2) G for order 2 (the Fourier transforms of -u g(u) and
+    u^2 g(u), u = x - x', by differentiating G)."""
+    transfer = np.exp(-2 * np.pi**2 * (sigma * frequency) ** 2)
+    if order == 1:
+        return 2j * np.pi * sigma**2 * frequency * transfer
+    if order == 2:
+        return sigma**2 * (1 - 4 * np.pi**2 * sigma**2 * frequency**2) * transfer
+    return transfer
+
+
+def gaussian_moments(image, sigmas, orders, out=None):
+    """Gaussian-weighted moments of ``image`` about every point, zero outside the field:
+    M_pq(y, x) = sum_(y', x') (y' - y)^p (x' - x)^q g(y' - y) g(x' - x) f(y', x'), for each
+    (p, q) of ``orders`` (p, q in 0..2); (0, 0) is the Gaussian smoothing. ``sigmas``: the
+    standard deviations (rows, columns) in pixels. Returns (len(orders), rows, columns)
+    (written into ``out`` when given).
+
+    Narrow kernels: direct separable correlation with the sampled kernels d^k g(d), truncated
+    at 4 sigma. Wide ones: one FFT of the image on a grid padded by 4 sigma (nothing wraps
+    around) and one inverse FFT per moment, with the kernels' transfer functions
+    (:func:`_moment_transfer`), whose cost does not grow with the kernel. Computing the
+    moments about each point directly, rather than smoothing y' f and x' f and subtracting
+    y and x times the smoothing, saves a forward FFT per moment and the cancellation
+    between large terms far from the centre.
     """
-    if out is None:
-        images = np.asarray(images, dtype=np.float64)
-        out = np.empty(images.shape)
-        flat_in, flat_out = images.reshape(-1, *images.shape[-2:]), out.reshape(-1, *images.shape[-2:])
-    else:
-        flat_in, flat_out = images, out
-    transfer = None
-    for index, image in enumerate(flat_in):
-        image = np.asarray(image, dtype=np.float64)
-        if max(sigmas) < _FFT_SIGMA_PX:
-            smoothed = scipy.ndimage.gaussian_filter1d(image, sigmas[0], axis=-2, mode="constant", truncate=_TRUNCATE)
-            flat_out[index] = scipy.ndimage.gaussian_filter1d(smoothed, sigmas[1], axis=-1, mode="constant", truncate=_TRUNCATE)
-            continue
-        rows, columns = image.shape
-        if transfer is None:
-            shape, transfer_rows, transfer_columns = _fft_plan(image.shape, sigmas)
-            transfer = transfer_rows[:, None] * transfer_columns[None, :]
-        spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
-        spectrum *= transfer
+    image = np.asarray(image, dtype=np.float64)
+    out = np.empty((len(orders), *image.shape)) if out is None else out
+    if max(sigmas) < _FFT_SIGMA_PX:
+        for index, (p, q) in enumerate(orders):
+            along_rows = scipy.ndimage.correlate1d(image, _moment_kernel(sigmas[0], p), axis=0, mode="constant")
+            out[index] = scipy.ndimage.correlate1d(along_rows, _moment_kernel(sigmas[1], q), axis=1, mode="constant")
+        return out
+    rows, columns = image.shape
+    shape = _fft_lengths(image.shape, sigmas)
+    spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
+    frequency_rows, frequency_columns = scipy.fft.fftfreq(shape[0]), scipy.fft.rfftfreq(shape[1])
+    for index, (p, q) in enumerate(orders):
+        product = spectrum * _moment_transfer(sigmas[0], frequency_rows, p)[:, None]
+        product *= _moment_transfer(sigmas[1], frequency_columns, q)[None, :]
         # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
         # reaches into the padding, which is at least 4 sigma wide on each side.
-        flat_out[index] = scipy.fft.irfft2(spectrum, s=shape, workers=-1)[:rows, :columns]
+        out[index] = scipy.fft.irfft2(product, s=shape, workers=-1, overwrite_x=True)[:rows, :columns]
     return out
 
 
-def gaussian_smooth_separable(columns_of_rows, rows_of_columns, sigmas):
-    """:func:`gaussian_smooth` of the images u(y) v(x) (outer products), as the 1-D smoothings
-    of their factors: the separable filter of u v is (g_y * u)(g_x * v), computed in O(rows +
-    columns) instead of O(rows x columns). ``columns_of_rows`` (k, rows) holds the u,
-    ``rows_of_columns`` (k, columns) the v; returns the two smoothed stacks, whose outer
-    products are the smoothed images (same kernels, padding and FFT lengths as
-    :func:`gaussian_smooth`, so equal to it up to rounding)."""
-    u, v = np.atleast_2d(np.asarray(columns_of_rows, dtype=np.float64)), np.atleast_2d(np.asarray(rows_of_columns, dtype=np.float64))
-    if max(sigmas) < _FFT_SIGMA_PX:
-        return tuple(scipy.ndimage.gaussian_filter1d(factor, sigma, axis=-1, mode="constant", truncate=_TRUNCATE)
-                     for factor, sigma in ((u, sigmas[0]), (v, sigmas[1])))
-    (length_rows, length_columns), transfer_rows, transfer_columns = _fft_plan((u.shape[-1], v.shape[-1]), sigmas)
-    # rows: the full-spectrum transfer is even in f, so its half (f >= 0) is the rfft's
-    smoothed_u = scipy.fft.irfft(scipy.fft.rfft(u, n=length_rows) * transfer_rows[: length_rows // 2 + 1], n=length_rows)[:, : u.shape[-1]]
-    smoothed_v = scipy.fft.irfft(scipy.fft.rfft(v, n=length_columns) * transfer_columns, n=length_columns)[:, : v.shape[-1]]
-    return smoothed_u, smoothed_v
+def _moments_of_ones(length, sigma, direct):
+    """(m0, m1, m2): the moments sum_t' (t' - t)^k g(t' - t), k = 0, 1, 2, over a line of
+    ``length`` points, at each of them: along one axis, the weight's moments of a full field
+    (whose 2-D moments are their outer products). ``direct``: the sampled kernels, as
+    :func:`gaussian_moments` uses for narrow kernels; otherwise the transfer functions."""
+    ones = np.ones(length)
+    if direct:
+        return tuple(scipy.ndimage.correlate1d(ones, _moment_kernel(sigma, k), mode="constant") for k in range(3))
+    n = _fft_lengths((length,), (sigma,))[0]
+    spectrum, frequency = scipy.fft.rfft(ones, n=n), scipy.fft.rfftfreq(n)
+    return tuple(scipy.fft.irfft(spectrum * _moment_transfer(sigma, frequency, k), n=n)[:length] for k in range(3))
 
 
 def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
@@ -157,12 +169,7 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     if not valid.any():
         raise SkinTopoError("the height map has no valid points to filter")
     values = np.where(valid, z, 0.0)
-    rows, columns = z.shape
-    # Centred coordinates (pixels) keep the moment sums well conditioned; kept as a column
-    # and a row (broadcast).
-    y = (np.arange(rows) - rows / 2)[:, None]
-    x = (np.arange(columns) - columns / 2)[None, :]
-    plane, zeroth, det, s0 = (_full_field_plane if valid.all() else _masked_plane)(values, valid, x, y, sigmas)
+    plane, zeroth, det, s0 = _full_field_plane(values, sigmas) if valid.all() else _masked_plane(values, valid, sigmas)
     with np.errstate(invalid="ignore"):
         # Conditioning of the plane fit: det against the determinant of a full symmetric
         # window, s0 * (s0 sigma_x^2) * (s0 sigma_y^2).
@@ -172,21 +179,16 @@ def areal_gaussian_filter(z, spacing, cutoff_um, mask=None):
     return np.where(reach, low, np.nan)
 
 
-def _full_field_plane(values, valid, x, y, sigmas):
+def _full_field_plane(values, sigmas):
     """The regression's plane heights where every point is valid: the weight is 1 everywhere,
-    so its moments about each point are outer products of 1-D smoothings (u of powers of y,
-    v of powers of x) and so are the cofactors of the 3 x 3 normal equations; the
-    determinant is even one outer product, u0 (u0 u_yy - u_y^2) (x) v0 (v0 v_xx - v_x^2).
-    Only the three data moments are 2-D smoothings, and the filter holds about 8 field-sized
-    arrays at its peak. Returns (plane, weighted mean, determinant, s0)."""
-    (u0, u1, u2), (v0, v1, v2) = gaussian_smooth_separable(y.T ** np.arange(3)[:, None], x ** np.arange(3)[:, None], sigmas)
-    y, x = y.ravel(), x.ravel()
-    uy, uyy = u1 - y * u0, u2 - 2 * y * u1 + y * y * u0  # moments about each row: sum w (y' - y), sum w (y' - y)^2
-    vx, vxx = v1 - x * v0, v2 - 2 * x * v1 + x * x * v0
-    rows, columns = u0.size, v0.size
-    sz, mxz, myz = gaussian_smooth((values * factor for factor in (1.0, x[None, :], y[:, None])), sigmas, out=np.empty((3, rows, columns)))
-    mxz -= x[None, :] * sz
-    myz -= y[:, None] * sz
+    so its moments about each point are outer products of 1-D moments (u along the rows, v
+    along the columns, :func:`_moments_of_ones`) and so are the cofactors of the 3 x 3 normal
+    equations; the determinant is even one outer product, u0 (u0 u_yy - u_y^2) (x) v0 (v0 v_xx
+    - v_x^2). Only the three data moments are 2-D filterings (one forward FFT, three inverse),
+    and the filter holds about 8 field-sized arrays at its peak. Returns (plane, weighted mean, determinant, s0)."""
+    direct = max(sigmas) < _FFT_SIGMA_PX  # the kernels of gaussian_moments
+    (u0, uy, uyy), (v0, vx, vxx) = (_moments_of_ones(n, sigma, direct) for n, sigma in zip(values.shape, sigmas))
+    sz, mxz, myz = gaussian_moments(values, sigmas, ((0, 0), (0, 1), (1, 0)))
     # numerator of the intercept by the adjugate's first row (c00, c01, c02) . (sz, mxz, myz)
     numerator = np.outer(u0 * uyy, v0 * vxx) - np.outer(uy * uy, vx * vx)  # c00 = mxx myy - mxy^2
     numerator *= sz
@@ -201,31 +203,16 @@ def _full_field_plane(values, valid, x, y, sigmas):
         return numerator, sz / s0, det, s0
 
 
-def _masked_plane(values, valid, x, y, sigmas):
-    """The regression's plane heights with missing points: the nine moments of the weight
-    (1 where valid) and of the data, each a 2-D smoothing, made one at a time as they are
-    smoothed (the filter holds about 20 field-sized arrays at its peak). Returns (plane,
-    weighted mean, determinant, s0)."""
+def _masked_plane(values, valid, sigmas):
+    """The regression's plane heights with missing points: the six moments of the weight (1
+    where valid) and the three of the data about each point, each a 2-D filtering (two
+    forward FFTs, nine inverse; the filter holds about 20 field-sized arrays at its peak).
+    Returns (plane, weighted mean, determinant, s0)."""
     rows, columns = values.shape
-    weight = valid.astype(np.float64)
-    products = ((weight, None), (weight, x), (weight, y), (weight, x * x), (weight, x * y), (weight, y * y), (values, None),
-                (values, x), (values, y))
-    moments = gaussian_smooth((base if factor is None else base * factor for base, factor in products), sigmas,
-                              out=np.empty((len(products), rows, columns)))
+    moments = np.empty((9, rows, columns))  # (p, q) of (y' - y)^p (x' - x)^q: the weight's six, then the data's three
+    gaussian_moments(valid.astype(np.float64), sigmas, ((0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0)), out=moments[:6])
+    gaussian_moments(values, sigmas, ((0, 0), (0, 1), (1, 0)), out=moments[6:])
     s0, sx, sy, sxx, sxy, syy, sz, sxz, syz = moments
-    # Moments about each output point (x0, y0), in place (each before the sums it reads change).
-    # The operations are those of mxx = sxx - 2 x sx + x^2 s0 etc. in the same order (same rounding).
-    sxx -= 2 * x * sx
-    sxx += x * x * s0  # mxx
-    syy -= 2 * y * sy
-    syy += y * y * s0  # myy
-    sxy -= x * sy
-    sxy -= y * sx
-    sxy += x * y * s0  # mxy
-    sxz -= x * sz  # mxz
-    syz -= y * sz  # myz
-    sx -= x * s0  # mx
-    sy -= y * s0  # my
     solution, det = solve_symmetric_3x3([c.ravel() for c in (s0, sx, sy, sxx, sxy, syy)], [c.ravel() for c in (sz, sxz, syz)], components=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return solution[0].reshape(rows, columns), sz / s0, det.reshape(rows, columns), s0

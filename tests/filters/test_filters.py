@@ -13,7 +13,7 @@ from skintopo.filters import (
     block_mean,
     extract_profile,
     gaussian_bandpass,
-    gaussian_smooth,
+    gaussian_moments,
     gaussian_transmission,
     level,
     line_segment_closing,
@@ -32,16 +32,32 @@ def sinusoid_amplitude(values, x, wavelength):
     return np.hypot(coefficients[0], coefficients[1])
 
 
-@pytest.mark.parametrize("sigmas", [(3.0, 1.5), (12.0, 20.0), (25.0, 9.0)])  # direct path, then the FFT path (>= 8 px)
-def test_gaussian_smooth_matches_scipy_with_different_row_and_column_widths(sigmas):
-    """Zero outside the field (scipy's mode "constant"), data up to the border, a stack of two;
-    150 columns padded by 4 x 9 px on each side make an odd FFT length (225)."""
-    rng = np.random.default_rng(2)
-    images = rng.normal(size=(2, 90, 150))
-    smoothed = gaussian_smooth(images, sigmas)
-    for image, result in zip(images, smoothed):
-        expected = scipy.ndimage.gaussian_filter(image, sigmas, mode="constant", truncate=6.0)
-        np.testing.assert_allclose(result, expected, atol=1e-4 * np.abs(expected).max())  # the direct path truncates at 4 sigma
+@pytest.mark.parametrize("sigmas", [(1.5, 1.0), (3.0, 1.5), (12.0, 20.0), (25.0, 9.0)])  # direct path, then the FFT path (>= 2 px)
+def test_gaussian_smoothing_matches_scipy_with_different_row_and_column_widths(sigmas):
+    """Zero outside the field (scipy's mode "constant"), data up to the border; 150 columns
+    padded by 4 x 9 px on each side make an odd FFT length (225)."""
+    image = np.random.default_rng(2).normal(size=(90, 150))
+    (smoothed,) = gaussian_moments(image, sigmas, ((0, 0),))
+    expected = scipy.ndimage.gaussian_filter(image, sigmas, mode="constant", truncate=6.0)
+    np.testing.assert_allclose(smoothed, expected, atol=1e-4 * np.abs(expected).max())  # the direct path truncates at 4 sigma
+
+
+@pytest.mark.parametrize("sigmas", [(1.5, 1.2), (6.0, 4.0)])  # direct path, FFT path
+def test_gaussian_moments_about_each_point_match_explicit_sums(sigmas):
+    """M_pq(y, x) = sum (y' - y)^p (x' - x)^q g g f, summed explicitly over every pair of
+    points with the continuous Gaussian's weights (no truncation), at points in the middle,
+    at an edge and at a corner."""
+    image = np.random.default_rng(3).normal(size=(40, 50))
+    orders = ((0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0))
+    moments = gaussian_moments(image, sigmas, orders)
+    rows, columns = np.mgrid[:40, :50]
+    for r, c in ((20, 25), (0, 30), (39, 0)):
+        dy, dx = rows - r, columns - c
+        weight = np.exp(-0.5 * (dy / sigmas[0]) ** 2 - 0.5 * (dx / sigmas[1]) ** 2) / (2 * np.pi * sigmas[0] * sigmas[1])
+        for (p, q), moment in zip(orders, moments):
+            expected = np.sum(dy**p * dx**q * weight * image)
+            scale = np.sum(np.abs(dy) ** p * np.abs(dx) ** q * weight * np.abs(image))
+            assert abs(moment[r, c] - expected) < 2e-3 * scale, ((p, q), (r, c), moment[r, c], expected)
 
 
 def test_coarse_gaussian_regression_matches_the_full_filter_where_wrinkles_are_masked():
