@@ -32,7 +32,11 @@ exclusion can remove it. Each pixel is then fitted as I_i = g . l_i + S D(n . h_
 (Beckmann facet distribution D, h_i the half vector of light i and the view v), S >= 0 per
 pixel and one roughness m for the field (:func:`_fit_specular_lobe`). With 4 lights the lobe's
 unknown would leave no redundancy, so none is fitted there. Measured: DiLiGenT ball, white,
-96 lights, 2.90 -> 2.28 degrees; numbers on rendered coats in docs/method.md.
+96 lights, 2.90 -> 2.28 degrees; numbers on rendered coats in docs/method.md. The robust
+solver fits the lobe to the observations it keeps and, per pixel, keeps the default's fit
+instead where that explains the same number of observations better (least trimmed squares,
+:func:`_least_trimmed_choice`): a broad sheen otherwise made it drop the observations that fix
+the lobe.
 """
 
 from __future__ import annotations
@@ -421,6 +425,29 @@ def _lobe_fit(intensity, allowed, weight, lights, g, readmit, roughness=None):
     return np.where(kept, solution, g), np.where(kept, weight, initial_weight), part, roughness
 
 
+def _least_trimmed_choice(observed, candidates, lights, robust, alternative):
+    """Per pixel, the fit (g, observations used, specular part) of the two, ``robust`` (the
+    lobe fitted to the observations the robust solver kept) or ``alternative`` (the lobe
+    fitted to all of them, the default solver's), whose k smallest squared residuals over the
+    ``candidates`` (the observations the shadow rule keeps) sum lower, k = the number of
+    observations the robust fit used: the least-trimmed-squares criterion (Rousseeuw 1984).
+    A broad sheen makes the robust solver leave out the brightest observations, with them
+    the lobe's scale, and the remaining ones are biased; the lobe fitted to all of them then
+    explains the same k observations better. A highlight the lobe cannot explain leaves
+    the alternative's normals bent and its k best residuals larger."""
+    trimmed = []
+    rank = np.arange(observed.shape[0])[:, None]
+    keep = robust[1].sum(axis=0)
+    for g, _, specular in (robust, alternative):
+        error = np.where(candidates, observed - lights.astype(np.float32) @ g.astype(np.float32) - specular, np.float32(np.inf))
+        error *= error
+        error.sort(axis=0)
+        trimmed.append(np.where(rank < keep, error, np.float32(0)).sum(axis=0))
+    with np.errstate(invalid="ignore"):
+        other = trimmed[1] < trimmed[0]  # False where either is NaN: the robust fit stays
+    return tuple(np.where(other, b, a) for a, b in zip(robust, alternative))
+
+
 def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHADOW_FRACTION, solver=DEFAULT_SOLVER,
                        exclude=None, highlights=None, robust_threshold=DEFAULT_ROBUST_THRESHOLD, max_iterations=12,
                        specular_lobe=True):
@@ -523,12 +550,17 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     lobe = specular_lobe and m >= SPECULAR_LOBE_MIN_LIGHTS
     if lobe:  # the observations the lobe may use again (the robust solver zeroes those it drops)
         candidates, observed = usable.copy(), intensity.copy()
+    least_squares = g
     if solver == "robust":
         g, count = _reject_outliers(intensity, usable, lights, g, count, threshold=robust_threshold, max_iterations=max_iterations,
                                     few_lights_rule=highlights is None)
     specular, roughness = np.float32(0), None
     if lobe:
         g, usable, specular, roughness = _fit_specular_lobe(observed, candidates, usable, lights, g, readmit=solver == "robust")
+        if solver == "robust":
+            g, usable, specular = _least_trimmed_choice(observed, candidates, lights, (g, usable, specular),
+                                                        _fit_specular_lobe(observed, candidates, candidates, lights, least_squares,
+                                                                           readmit=False)[:3])
         intensity = np.where(usable, observed, np.float32(0))
         count = np.add.reduce(usable, axis=0, dtype=np.int16)
 
