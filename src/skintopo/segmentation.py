@@ -354,9 +354,11 @@ def _span(points):
 def _chained_arms(arms, hubs, pixel, width):
     """Arms (ids of ``arms``) grouped into wrinkles (see :func:`split_crossing_wrinkles`).
 
-    Two junctions joined by an arm shorter than 2 widths are one crossing (wrinkles crossing
-    at a shallow angle share a stretch of skeleton), and that arm belongs to neither; an arm
-    from a junction to a free end shorter than a width is a spur of the skeleton."""
+    An arm from a junction to a free end shorter than a width is a spur of the skeleton. Two
+    junctions joined by an arm shorter than 2 widths are one crossing (wrinkles crossing at a
+    shallow angle share a stretch of skeleton), and that arm belongs to neither; an arm longer
+    than a width counts as such a bridge only when both its junctions join at least three arms
+    that are not spurs (a wide wrinkle's rounded end forks into spurs)."""
     straight = np.cos(np.radians(CROSSING_MAX_BEND_DEG))
     reach = max(3.0, 2 * width / pixel)  # pixels over which an arm's direction at an end is taken
     neighbours = scipy.ndimage.convolve((arms > 0).astype(int), np.ones((3, 3), int), mode="constant") - 1
@@ -370,13 +372,21 @@ def _chained_arms(arms, hubs, pixel, width):
         ends = [p for p in points[a] if neighbours[int(p[0]), int(p[1])] <= 1] or [points[a][0]]
         tips[a] = [(end, int(hubs[max(0, int(end[0]) - 1):int(end[0]) + 2, max(0, int(end[1]) - 1):int(end[1]) + 2].max()))
                    for end in ends[:2]]
+    at_hubs = {a: {hub for _, hub in ends if hub} for a, ends in tips.items()}
+    spurs = {a for a, ends in tips.items() if len(at_hubs[a]) == 1 and len(ends) == 2 and len(points[a]) * pixel < width}
+    # arms shorter than a width, in the tangle of a crossing's skeleton, are bridges between
+    # any two hubs (counting only the junctions of three arms lost crossings on held-out fields)
+    arms_at = {}
+    for a in tips.keys() - spurs:
+        for hub in at_hubs[a]:
+            arms_at[hub] = arms_at.get(hub, 0) + 1
     ids = []
-    for a, ends in tips.items():
-        at_hubs = {hub for _, hub in ends if hub}
+    for a in sorted(tips.keys() - spurs):
         length = len(points[a]) * pixel
-        if len(at_hubs) == 2 and length < 2 * width:
-            crossings.merge(*at_hubs)
-        elif not (len(at_hubs) == 1 and len(ends) == 2 and length < width):  # a spur otherwise
+        junctions = at_hubs[a] if length < width else {hub for hub in at_hubs[a] if arms_at[hub] >= 3}
+        if len(junctions) == 2 and length < 2 * width:
+            crossings.merge(*junctions)
+        else:
             ids.append(a)
     def outward(a, end):
         """Unit direction of arm ``a`` at its point ``end``, pointing out of the arm: from the
