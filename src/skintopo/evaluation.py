@@ -116,6 +116,32 @@ def cross_section_line(labels, index, spacing, length_factor=3.0):
     return ends[0], ends[1]
 
 
+def match_wrinkles_to_truth(measures, truth_labels):
+    """One measured wrinkle at most per true wrinkle: each measured wrinkle (of a
+    :class:`skintopo.wrinkles.WrinkleMeasures`) belongs to the true wrinkle (``truth_labels``:
+    0 outside, i + 1 in wrinkle i's half-depth region) of which it covers the largest share,
+    and a true wrinkle is found when the measured wrinkle covering most of it belongs to it.
+    A shallow wrinkle that the segmentation merged into a deeper one it crosses is then not
+    found, rather than found with the deep one's measures. Returns a list (true wrinkle i at
+    index i) of measured wrinkles or None."""
+    truth_labels = np.asarray(truth_labels)
+    count_true, count_measured = int(truth_labels.max()), len(measures.wrinkles)
+    ids = [0] + [w.id for w in measures.wrinkles]
+    index = np.zeros(max(int(np.max(measures.labels)), *ids) + 1, int)  # measured id -> column (0: none)
+    index[ids] = np.arange(count_measured + 1)
+    inside = truth_labels > 0
+    overlap = np.bincount(truth_labels[inside] * (count_measured + 1) + index[measures.labels[inside]],
+                          minlength=(count_true + 1) * (count_measured + 1)).reshape(count_true + 1, count_measured + 1)[1:]
+    share = overlap / np.maximum(overlap.sum(axis=1, keepdims=True), 1)
+    share[:, 0] = 0.0
+    owner = share.argmax(axis=0)  # the true wrinkle each measured one belongs to
+    found = []
+    for i in range(count_true):
+        best = int(share[i].argmax())
+        found.append(measures.wrinkles[best - 1] if share[i, best] > 0 and owner[best] == i else None)
+    return found
+
+
 def match_wrinkle(measures, region):
     """The measured wrinkle (of a :class:`skintopo.wrinkles.WrinkleMeasures`) whose id covers
     most of ``region`` (a true wrinkle's half-depth region), or None when none touches it."""

@@ -59,3 +59,28 @@ def test_wrinkle_figures_of_a_known_wrinkle():
     assert report["wrinkle_max_depth_um"][0] == pytest.approx(0.8 * true_depth, rel=0.03)
     assert report["wrinkle_depth_error_relative"][0] == pytest.approx(0.2, abs=0.01)
     assert report["rms_height_error_in_wrinkles_um"] > 2 * report["rms_height_error_um"]
+
+
+def test_each_measured_wrinkle_matches_one_true_wrinkle_at_most():
+    """Two true wrinkles crossing; the measured wrinkle 1 covers all of the first and a third
+    of the second (a shallow wrinkle merged into the deep one it crosses): the first is found
+    as 1, the second is not found (before, it was "found" as 1 too). With a measured wrinkle 2
+    on the rest of the second, each is found as its own; an id in the labels that has no
+    measures (4) belongs to nobody."""
+    from types import SimpleNamespace
+
+    from skintopo.evaluation import match_wrinkles_to_truth
+
+    truth = np.zeros((20, 30), int)
+    truth[8:12, :] = 1
+    truth[:, 14:16] = 2
+    truth[8:12, 14:16] = 1  # the crossing belongs to the first
+    measured = np.where(truth == 1, 1, 0)
+    measured[:6, 14:16] = 1  # a third of the second wrinkle's region outside the crossing
+    wrinkles = [SimpleNamespace(id=1), SimpleNamespace(id=3)]
+    first, second = match_wrinkles_to_truth(SimpleNamespace(labels=measured, wrinkles=wrinkles), truth)
+    assert first.id == 1 and second is None
+    measured[12:, 14:16] = 3
+    measured[0, 0] = 4
+    first, second = match_wrinkles_to_truth(SimpleNamespace(labels=measured, wrinkles=wrinkles), truth)
+    assert first.id == 1 and second.id == 3
