@@ -237,3 +237,26 @@ def test_one_straight_groove_beside_a_masked_area_is_one_wrinkle_along_its_floor
     empty = np.zeros((4, 4), bool)
     assert all(np.isnan(v) for v in segmentation_quality(empty, empty).values())
     assert segmentation_from_labels(found.labels.astype(np.uint8), pixel).labels.dtype == np.int32
+
+
+def test_half_depth_reference_follows_the_valley_direction():
+    """A 200 um deep valley along x crossed by a 50 um one along y (Gaussian profiles of 6
+    px, 20 um pixels, 2 mm window): on the shallow valley's floor 0.8-0.9 mm from the deep one
+    the reference is its own 50 um, where the square window's maximum is the deep floor (which
+    would cut the shallow valley there); nearer, where the deep valley's walls set the
+    direction, it is the deep floor as before; on the deep floor it stays 200 um; a shallow
+    branch beside the deep valley, with no valley of the minimum depth running its way, keeps
+    the square window's reference."""
+    from skintopo.segmentation import local_maximum_along_valley
+
+    rows, columns = np.mgrid[:200, :200].astype(float)
+    depth = 200 * np.exp(-0.5 * ((rows - 100) / 6) ** 2) + 50 * np.exp(-0.5 * ((columns - 100) / 6) ** 2)
+    region = depth > 10
+    reference = local_maximum_along_valley(depth, region, 101, 20.0, 25.0)
+    square = scipy.ndimage.maximum_filter(np.where(region, depth, 0.0), size=101)
+    for row in (55, 60):
+        assert reference[row, 100] == pytest.approx(50.0, rel=0.02) and square[row, 100] > 150
+    assert reference[85, 100] == pytest.approx(square[85, 100]) and reference[100, 30] == pytest.approx(200.0, rel=0.01)
+    branch = 200 * np.exp(-0.5 * ((rows - 100) / 6) ** 2) + 15 * np.exp(-0.5 * ((columns - 100) / 4) ** 2) * (rows < 120)
+    reference = local_maximum_along_valley(branch, branch > 10, 101, 20.0, 25.0)
+    assert reference[70, 100] > 150
