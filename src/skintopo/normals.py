@@ -550,8 +550,8 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
     lobe = specular_lobe and m >= SPECULAR_LOBE_MIN_LIGHTS
     if lobe:  # the observations the lobe may use again (the robust solver zeroes those it drops)
         candidates, observed = usable.copy(), intensity.copy()
-    least_squares = g
     if solver == "robust":
+        least_squares = g  # the default's starting point, for _least_trimmed_choice
         g, count = _reject_outliers(intensity, usable, lights, g, count, threshold=robust_threshold, max_iterations=max_iterations,
                                     few_lights_rule=highlights is None)
     specular, roughness = np.float32(0), None
