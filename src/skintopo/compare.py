@@ -37,18 +37,24 @@ def _change(before, after):
 
 
 def match_wrinkles(baseline_labels, follow_up_labels, min_overlap=0.2):
-    """Baseline id -> follow-up id by the largest overlap of their half-depth regions (as a
-    fraction of the smaller region, at least ``min_overlap``); unmatched ids map to None."""
+    """Baseline id -> follow-up id, one to one: a baseline wrinkle and a follow-up wrinkle are
+    matched when each is the other's largest overlap (of their half-depth regions) and that
+    overlap is at least ``min_overlap`` of the smaller region; unmatched ids map to None. Two
+    baseline wrinkles merged into one in the follow-up (a crossing pair segmented as one) are
+    then not both compared with it: only the one covering most of it is, and the other is
+    reported unmatched rather than with its partner's measures."""
+    from skintopo.evaluation import label_overlap
+
+    overlap = label_overlap(baseline_labels, follow_up_labels)
+    sizes_baseline, sizes_follow_up = overlap.sum(axis=1), overlap.sum(axis=0)
+    overlap[0, :] = overlap[:, 0] = 0
+    best_follow_up, best_baseline = overlap.argmax(axis=1), overlap.argmax(axis=0)
     matches = {}
-    for index in range(1, int(baseline_labels.max()) + 1):
-        region = baseline_labels == index
-        counts = np.bincount(follow_up_labels[region], minlength=int(follow_up_labels.max()) + 1)
-        counts[0] = 0
-        best = int(counts.argmax())
-        if best and counts[best] >= min_overlap * min(region.sum(), (follow_up_labels == best).sum()):
-            matches[index] = best
-        else:
-            matches[index] = None
+    for index in range(1, len(overlap)):
+        best = int(best_follow_up[index])
+        shared = overlap[index, best]
+        mutual = best > 0 and best_baseline[best] == index
+        matches[index] = best if mutual and shared >= min_overlap * min(sizes_baseline[index], sizes_follow_up[best]) else None
     return matches
 
 

@@ -116,6 +116,14 @@ def cross_section_line(labels, index, spacing, length_factor=3.0):
     return ends[0], ends[1]
 
 
+def label_overlap(labels_a, labels_b, shape=None):
+    """counts[i, j]: the number of pixels labelled i in ``labels_a`` and j in ``labels_b`` (0:
+    background), of ``shape`` (default: (max(labels_a) + 1, max(labels_b) + 1))."""
+    a, b = (np.asarray(labels, dtype=np.int64).ravel() for labels in (labels_a, labels_b))
+    rows, columns = shape or (int(a.max(initial=0)) + 1, int(b.max(initial=0)) + 1)
+    return np.bincount(a * columns + b, minlength=rows * columns).reshape(rows, columns)
+
+
 def match_wrinkles_to_truth(measures, truth_labels):
     """One measured wrinkle at most per true wrinkle: each measured wrinkle (of a
     :class:`skintopo.wrinkles.WrinkleMeasures`) belongs to the true wrinkle (``truth_labels``:
@@ -130,8 +138,7 @@ def match_wrinkles_to_truth(measures, truth_labels):
     index = np.zeros(max(int(np.max(measures.labels)), *ids) + 1, int)  # measured id -> column (0: none)
     index[ids] = np.arange(count_measured + 1)
     inside = truth_labels > 0
-    overlap = np.bincount(truth_labels[inside] * (count_measured + 1) + index[measures.labels[inside]],
-                          minlength=(count_true + 1) * (count_measured + 1)).reshape(count_true + 1, count_measured + 1)[1:]
+    overlap = label_overlap(truth_labels[inside], index[measures.labels[inside]], shape=(count_true + 1, count_measured + 1))[1:]
     share = overlap / np.maximum(overlap.sum(axis=1, keepdims=True), 1)
     share[:, 0] = 0.0
     owner = share.argmax(axis=0)  # the true wrinkle each measured one belongs to

@@ -139,3 +139,20 @@ def test_change_records_and_wrinkle_matching():
     follow_up[15:16, 10:11] = 7  # a one-pixel region also in wrinkle 2: fewer pixels, not its match
     assert match_wrinkles(baseline, follow_up) == {1: 5, 2: 6}
     assert match_wrinkles(baseline, np.zeros_like(follow_up)) == {1: None, 2: None}
+
+
+def test_wrinkle_matching_is_one_to_one():
+    """Two baseline wrinkles that the follow-up segmented as one (a crossing pair merged): only
+    the one covering most of the merged region is compared with it; the other is unmatched,
+    not reported with its partner's measures. A baseline wrinkle split in two in the
+    follow-up is matched with its larger piece."""
+    from skintopo.compare import match_wrinkles
+
+    baseline = np.zeros((40, 40), int)
+    baseline[18:22, 2:38] = 1  # a long horizontal wrinkle
+    baseline[10:30, 19:21] = 2  # a shorter vertical one crossing it
+    merged = np.where(baseline > 0, 4, 0)  # one region in the follow-up
+    assert match_wrinkles(baseline, merged) == {1: 4, 2: None}
+    split = np.zeros_like(baseline)
+    split[18:22, 2:15], split[18:22, 15:38] = 1, 2
+    assert match_wrinkles(baseline, np.where(baseline == 1, split, 0)) == {1: 2, 2: None}
