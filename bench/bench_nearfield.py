@@ -21,7 +21,8 @@ Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|sk
 ``--per-effect`` scores ideal and near-field with each of the skin's effects alone (and the
 highlights with the cross-band separation, and removed exactly), to find which one makes the
 near-field gap (nearfield-SIZE-per-effect.json).
-Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band].json.
+``--optics NAME`` renders with that skin-optics profile (default: the simulator's, default-v1).
+Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band][-OPTICS].json.
 """
 
 import argparse
@@ -40,7 +41,7 @@ from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.nearfield import near_field_photometric_stereo
 from skintopo.normals import photometric_stereo, separate_specular
-from skintopo.synth import Effects, RenderSettings, preset_spec, simulate_acquisition
+from skintopo.synth import PROFILES, Effects, RenderSettings, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
 
 RADIUS_MM = 80.0
@@ -170,6 +171,8 @@ def main():
                         help="lambertian: diffuse only; skin: + translucency, highlights, cast shadows (no interreflection)")
     parser.add_argument("--highlights", choices=["none", "cross-band"], default="none",
                         help="cross-band: every reconstruction solves the dichromatic diffuse images (images minus their specular part)")
+    parser.add_argument("--optics", choices=PROFILES, default=None,
+                        help="the skin-optics profile of the renders (default: the simulator's, default-v1)")
     parser.add_argument("--mitsuba", action="store_true", help="the comparison on Mitsuba 3 renders instead (mitsuba-SIZE.json)")
     parser.add_argument("--per-effect", action="store_true", help="each skin effect alone (nearfield-SIZE-per-effect.json)")
     args = parser.parse_args()
@@ -179,6 +182,8 @@ def main():
         return per_effect(args.size)
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
+    if args.optics is not None:
+        settings = replace(settings, optics=optics_profile(args.optics))
     start = time.perf_counter()
     bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
     seconds_render = time.perf_counter() - start
@@ -187,7 +192,7 @@ def main():
     lights = device.central_directions()
     ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
 
-    result = {"device": device.describe(), "effects": args.effects, "size_px": args.size, "pixel_um": device.pixel_um,
+    result = {"device": device.describe(), "effects": args.effects, "optics": settings.optics.name, "size_px": args.size, "pixel_um": device.pixel_um,
               "forehead_radius_mm": RADIUS_MM, "seconds_render": seconds_render, "band": "red"}
     red, ideal_red = bands["red"], ideal_bands["red"][0]
     if args.highlights == "cross-band":
@@ -232,6 +237,7 @@ def main():
                        "seconds_near_field_bands_independent": seconds_independent}
     name = "nearfield" if (args.size, args.effects) == (1000, "lambertian") else f"nearfield-{args.size}-{args.effects}"
     name += "" if args.highlights == "none" else "-cross-band"
+    name += "" if args.optics is None else f"-{args.optics}"
     write_result(name, result)
 
 
