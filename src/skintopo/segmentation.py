@@ -350,6 +350,14 @@ def skin_level(surface, spacing, skin, cutoff_um=REFERENCE_CUTOFF_UM):
 
 CROSSING_MAX_BEND_DEG = 40.0  # arms this close to straight continue one wrinkle
 CROSSING_MAX_GAP_UM = 2500.0  # pieces of one wrinkle may be this far apart (its half-depth region cut by a deeper one)
+# A label is split when its longest chain spans the minimum length and another at least this
+# fraction of it: a wrinkle that crosses a deeper one near its own end keeps on one side only
+# the part its half-depth region reaches past the crossing. Such a shorter chain must also
+# meet a full one away from that one's ends (:func:`_crosses`), or furrows running on from a
+# wrinkle's end became wrinkles of their own (forehead-high seed 10). Chosen among 0.5 / 0.7 /
+# 1 on bench_wrinkles' fields (seeds 0-959, 2026-12-04, before the condition on the ends): 0.5
+# found the most crossing pairs but made false wrinkles of furrows in 5 more fields.
+CROSSING_MIN_SPAN_FRACTION = 0.7
 
 
 def split_crossing_wrinkles(labels, spacing, min_length_um):
@@ -360,9 +368,11 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
     one wrinkle where they run on nearly straight (within ``CROSSING_MAX_BEND_DEG``): at a
     junction, the most nearly opposite arms are joined; across a gap (a shallow wrinkle's
     region is cut where a deeper one crosses it, up to ``CROSSING_MAX_GAP_UM``), two free ends
-    that point at each other are joined. When two or more such chains span at least
-    ``min_length_um`` (gaps included), every point of the region goes to the nearest chain;
-    otherwise the label is left as it is."""
+    that point at each other are joined. When one such chain spans at least ``min_length_um``
+    (gaps included) and another either as long or at least ``CROSSING_MIN_SPAN_FRACTION`` x
+    ``min_length_um`` long and meeting a chain of full length away from its ends (a wrinkle
+    that crosses a deeper one near its own end: :func:`_crosses`), every point of the region
+    goes to the nearest of those chains; otherwise the label is left as it is."""
     labels = np.asarray(labels)
     pixel = min(pixel_spacing(spacing))
     out = labels.copy()
@@ -377,7 +387,12 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
             continue
         width = region.area * pixel / max(region.axis_major_length, 1.0)
         chains = _chained_arms(arms, hubs, pixel, width)
-        long_chains = [chain for chain in chains if _span(np.argwhere(np.isin(arms, chain))) * pixel >= min_length_um]
+        spans = [_span(np.argwhere(np.isin(arms, chain))) * pixel for chain in chains]
+        full = [chain for chain, span in zip(chains, spans) if span >= min_length_um]
+        if not full:
+            continue
+        shorter = [chain for chain, span in zip(chains, spans) if CROSSING_MIN_SPAN_FRACTION * min_length_um <= span < min_length_um]
+        long_chains = full + [chain for chain in shorter if _crosses(arms, chain, full, width / pixel)]
         if len(long_chains) < 2:
             continue
         owner = np.zeros(core.shape, np.int32)
@@ -391,6 +406,23 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
     return out
 
 
+def _crosses(arms, chain, full, width_px):
+    """Whether the point of one of the ``full`` chains of arms nearest to ``chain`` lies at
+    least a width (``width_px``) from that chain's ends along its principal axis: ``chain``
+    meets it from the side (a wrinkle crossing it, its region cut by it), not as a furrow
+    running on from its end."""
+    mine = np.argwhere(np.isin(arms, chain))
+    for other in full:
+        theirs = np.argwhere(np.isin(arms, other)).astype(float)
+        distance = np.hypot(*(mine[:, None, :] - theirs[None, :, :]).transpose(2, 0, 1))
+        closest = np.unravel_index(distance.argmin(), distance.shape)
+        centred = theirs - theirs.mean(axis=0)
+        along = centred @ np.linalg.svd(centred, full_matrices=False)[2][0]
+        if min(along[closest[1]] - along.min(), along.max() - along[closest[1]]) >= width_px:
+            return True
+    return False
+
+
 def _span(points):
     """Extent (pixels) of ``points`` along their principal axis: the length of a chain of arms,
     gaps included."""
@@ -402,7 +434,9 @@ def _span(points):
 def _chained_arms(arms, hubs, pixel, width):
     """Arms (ids of ``arms``) grouped into wrinkles (see :func:`split_crossing_wrinkles`).
 
-    An arm from a junction to a free end shorter than a width is a spur of the skeleton. Two
+    An arm from a junction to a free end shorter than a width is a spur of the skeleton (a
+    one-pixel arm too: kept, it made a junction of two kept arms out of a wrinkle's cut end,
+    which then could not be joined across the gap to its other piece). Two
     junctions joined by an arm shorter than 2 widths are one crossing (wrinkles crossing at a
     shallow angle share a stretch of skeleton), and that arm belongs to neither; an arm longer
     than a width counts as such a bridge only when both its junctions join at least three arms
@@ -421,7 +455,7 @@ def _chained_arms(arms, hubs, pixel, width):
         tips[a] = [(end, int(hubs[max(0, int(end[0]) - 1):int(end[0]) + 2, max(0, int(end[1]) - 1):int(end[1]) + 2].max()))
                    for end in ends[:2]]
     at_hubs = {a: {hub for _, hub in ends if hub} for a, ends in tips.items()}
-    spurs = {a for a, ends in tips.items() if len(at_hubs[a]) == 1 and len(ends) == 2 and len(points[a]) * pixel < width}
+    spurs = {a for a in tips if len(at_hubs[a]) == 1 and len(points[a]) * pixel < width}  # a 1-pixel arm too
     # arms shorter than a width, in the tangle of a crossing's skeleton, are bridges between
     # any two hubs (counting only the junctions of three arms lost crossings on held-out fields)
     arms_at = {}

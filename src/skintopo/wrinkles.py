@@ -307,7 +307,9 @@ def deep_cross_sections(frame: WrinkleFrame, depth, profile, depth_fraction):
     floor ``profile`` there, and where the floor is at that fraction of its deepest or
     deeper (the cross-sections whose edges belong to the wrinkle)."""
     lower, upper = cross_section_edges(frame, depth, depth_fraction * np.where(np.isfinite(profile), profile, 0.0))
-    return lower, upper, np.isfinite(profile) & (profile >= depth_fraction * profile.max())
+    finite = np.isfinite(profile)
+    deepest = profile[finite].max() if finite.any() else np.inf
+    return lower, upper, finite & (profile >= depth_fraction * deepest)
 
 
 def midline(frame: WrinkleFrame, depth, profile, depth_fraction, extension_um):
@@ -572,7 +574,8 @@ class WrinkleProperties:
 
     @property
     def measurable(self):
-        return self._measured is not None
+        """Whether the wrinkle has a centre line with ends at half depth (:attr:`_ends`)."""
+        return self._measured is not None and self._ends is not None
 
     @property
     def frame(self) -> WrinkleFrame:
@@ -585,13 +588,18 @@ class WrinkleProperties:
         t = +-``ENDS_ACROSS_FRACTION`` of the median half-depth width (of the samples at half
         depth or deeper on the centre line's own profile). For a wrinkle d = D e(s) f(t) the
         ends are those of the centre line's profile; a furrow narrower than half the wrinkle's
-        half-depth width that runs on from an end does not carry it on."""
+        half-depth width that runs on from an end does not carry it on. None when no sample is
+        at half depth (a sliver whose floor profile is mostly off the map): not measurable."""
         frame, depth, inside, profile = self._measured
         fraction = self._field.settings.depth_fraction
         lower, upper, deep = deep_cross_sections(frame, depth, profile, fraction)
+        if not deep.any():
+            return None
         across = ENDS_ACROSS_FRACTION * float(np.median((upper - lower)[deep]))
         profile = floor_profile(frame, depth, inside, PROFILE_SMOOTHING_UM, across)
-        threshold = fraction * float(profile.max())
+        if not np.isfinite(profile).any():
+            return None
+        threshold = fraction * float(np.nanmax(profile))
         deep = np.flatnonzero(profile >= threshold)
         return deep[0], deep[-1], threshold, profile
 

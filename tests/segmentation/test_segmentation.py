@@ -143,7 +143,25 @@ def test_pieces_of_a_wrinkle_cut_by_a_deeper_one_are_chained_across_the_gap():
     slanted = _band(shape, (168, 134), 30.0, 60, 8)  # points 60 degrees away from the upper piece
     labels = np.where(deep | above | slanted, 1, 0)
     split = split_crossing_wrinkles(labels, 20.0, 1500.0)
-    assert len(np.unique(split[labels > 0])) == 1  # no second chain long enough: left as it was
+    # the upper piece (1.2 mm, at least 0.7 of the minimum length) meets the deep band from the
+    # side: a wrinkle of its own, not joined to the slanted piece
+    assert len(np.unique(split[above])) == 1 and np.unique(split[above])[0] != np.unique(split[deep & (np.abs(np.mgrid[:240, :240][1] - 120) > 30)])[0]
+    assert not set(np.unique(split[slanted & ~deep])) & set(np.unique(split[above]))
+
+
+def test_a_short_piece_off_a_wrinkles_end_is_not_split_off():
+    """A 1.4 mm piece (under the 1.5 mm minimum length, over 0.7 of it) in a 4 mm band's label,
+    leaving it at an end (a furrow running on from the wrinkle's end, as in forehead-high seed
+    10) stays in the band's label; the same piece meeting the band in its middle is a wrinkle
+    of its own."""
+    shape = (240, 240)
+    deep = _band(shape, (120, 120), 0.0, 200, 12)
+    off_end = _band(shape, (160, 232), 80.0, 70, 8)  # beyond the band's right end, running down
+    labels = np.where(deep | off_end, 1, 0)
+    np.testing.assert_array_equal(split_crossing_wrinkles(labels, 20.0, 1500.0), labels)
+    middle = _band(shape, (155, 120), 80.0, 70, 8)
+    labels = np.where(deep | middle, 1, 0)
+    assert len(np.unique(split_crossing_wrinkles(labels, 20.0, 1500.0)[labels > 0])) == 2
 
 
 def test_segmentation_of_a_simulated_forehead_against_its_truth():
