@@ -32,7 +32,8 @@ because the height map does not over-segment. Steps:
    the wrinkles found (30 um deep or more) from 84% to 99.2% (every one of them in 98.5% of
    the fields), with a false wrinkle in 3.8% of the fields; counting a shallow wrinkle merged
    into a deeper one it crosses as not found (one true wrinkle per measured one), 94.6% and
-   90.5% (99.4% and 98.9% outside crossing pairs, 75% and 57% in them).
+   90.5% (99.4% and 98.9% outside crossing pairs, 75% and 57% in them; 95.0% and 91.3%,
+   78% and 61% in crossing pairs since the crossing split of 2026-12-04, step 7).
 7. Crossing wrinkles (one basin group, so one label) are split, one label per wrinkle
    (:func:`split_crossing_wrinkles`): the skeleton is cut at its junctions and its arms are
    continued by the straightest continuation, through a junction or across a gap.
