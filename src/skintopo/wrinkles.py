@@ -589,7 +589,8 @@ class WrinkleProperties:
         depth or deeper on the centre line's own profile). For a wrinkle d = D e(s) f(t) the
         ends are those of the centre line's profile; a furrow narrower than half the wrinkle's
         half-depth width that runs on from an end does not carry it on. None when no sample is
-        at half depth (a sliver whose floor profile is mostly off the map): not measurable."""
+        at half depth (a region with no floor below the surrounding skin, or whose floor
+        profile is off the map): not measurable."""
         frame, depth, inside, profile = self._measured
         fraction = self._field.settings.depth_fraction
         lower, upper, deep = deep_cross_sections(frame, depth, profile, fraction)
@@ -601,7 +602,7 @@ class WrinkleProperties:
             return None
         threshold = fraction * float(np.nanmax(profile))
         deep = np.flatnonzero(profile >= threshold)
-        return deep[0], deep[-1], threshold, profile
+        return (deep[0], deep[-1], threshold, profile) if deep.size else None  # none: a floor above the skin
 
     @cached_property
     def length_mm(self):
