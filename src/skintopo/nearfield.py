@@ -397,8 +397,9 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
         crop = (slice(0, rows * factor), slice(0, columns * factor))
         binned = np.stack([block_mean(image[crop], factor) for image in images]).astype(np.float32)
         coarse_mask = block_mean(mask[crop].astype(float), factor) > 0.999
+        coarse_settings = {**settings, "tolerance_um": max(tolerance_um, COARSE_TOLERANCE_UM)}
         coarse_depth, _, _, _, _, coarse_valid, coarse_changes, coarse_scales = _alternate(
-            binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **{**settings, "tolerance_um": max(tolerance_um, COARSE_TOLERANCE_UM)})
+            binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **coarse_settings)
         options["binned"] = {"factor": factor, "changes_um": coarse_changes, "scales": coarse_scales}
         known = np.isfinite(coarse_depth)
         if not coarse_valid.any():

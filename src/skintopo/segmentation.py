@@ -387,18 +387,19 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
         if arms.max() < 2:
             continue
         width = region.area * pixel / max(region.axis_major_length, 1.0)
-        chains = _chained_arms(arms, hubs, pixel, width)
-        spans = [_span(np.argwhere(np.isin(arms, chain))) * pixel for chain in chains]
-        full = [chain for chain, span in zip(chains, spans) if span >= min_length_um]
+        points = [np.argwhere(np.isin(arms, chain)) for chain in _chained_arms(arms, hubs, pixel, width)]
+        along = [_along_axis(p) for p in points]  # the position of each chain's points along it
+        spans = [float(np.ptp(a)) * pixel for a in along]  # its length, gaps included
+        full = [index for index, span in enumerate(spans) if span >= min_length_um]
         if not full:
             continue
-        shorter = [chain for chain, span in zip(chains, spans) if CROSSING_MIN_SPAN_FRACTION * min_length_um <= span < min_length_um]
-        long_chains = full + [chain for chain in shorter if _crosses(arms, chain, full, width / pixel)]
+        long_chains = full + [index for index, span in enumerate(spans) if CROSSING_MIN_SPAN_FRACTION * min_length_um <= span < min_length_um
+                              and _crosses(points[index], [(points[f], along[f]) for f in full], width / pixel)]
         if len(long_chains) < 2:
             continue
         owner = np.zeros(core.shape, np.int32)
-        for number, chain in enumerate(long_chains, start=1):
-            owner[np.isin(arms, chain)] = number
+        for number, index in enumerate(long_chains, start=1):
+            owner[tuple(points[index].T)] = number
         _, (rows, columns) = scipy.ndimage.distance_transform_edt(owner == 0, return_indices=True)
         nearest = owner[rows, columns]
         box = out[region.slice]
@@ -407,29 +408,24 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
     return out
 
 
-def _crosses(arms, chain, full, width_px):
-    """Whether the point of one of the ``full`` chains of arms nearest to ``chain`` lies at
-    least a width (``width_px``) from that chain's ends along its principal axis: ``chain``
-    meets it from the side (a wrinkle crossing it, its region cut by it), not as a furrow
-    running on from its end."""
-    mine = np.argwhere(np.isin(arms, chain))
-    for other in full:
-        theirs = np.argwhere(np.isin(arms, other)).astype(float)
+def _crosses(mine, full, width_px):
+    """Whether the point of one of the ``full`` chains ((points, their positions along the
+    chain's principal axis) each) nearest to the points ``mine`` of another chain lies at least
+    a width (``width_px``) from that chain's ends: ``mine`` meets it from the side (a wrinkle
+    crossing it, its region cut by it), not as a furrow running on from its end."""
+    for theirs, along in full:
         distance = np.hypot(*(mine[:, None, :] - theirs[None, :, :]).transpose(2, 0, 1))
-        closest = np.unravel_index(distance.argmin(), distance.shape)
-        centred = theirs - theirs.mean(axis=0)
-        along = centred @ np.linalg.svd(centred, full_matrices=False)[2][0]
-        if min(along[closest[1]] - along.min(), along.max() - along[closest[1]]) >= width_px:
+        closest = np.unravel_index(distance.argmin(), distance.shape)[1]
+        if min(along[closest] - along.min(), along.max() - along[closest]) >= width_px:
             return True
     return False
 
 
-def _span(points):
-    """Extent (pixels) of ``points`` along their principal axis: the length of a chain of arms,
-    gaps included."""
+def _along_axis(points):
+    """The positions (pixels) of ``points`` (n, 2) along their principal axis (zeros for a
+    single point)."""
     centred = points - points.mean(axis=0)
-    projection = centred @ np.linalg.svd(centred, full_matrices=False)[2][0] if len(points) > 1 else np.zeros(1)
-    return float(np.ptp(projection))
+    return centred @ np.linalg.svd(centred, full_matrices=False)[2][0] if len(points) > 1 else np.zeros(1)
 
 
 def _chained_arms(arms, hubs, pixel, width):
