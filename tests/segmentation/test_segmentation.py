@@ -119,6 +119,24 @@ def test_an_arm_ending_in_a_fork_of_spurs_still_continues_through_the_crossing()
         assert found.length_mm == pytest.approx(geometric_measures(wrinkle)["length_mm"], rel=0.05)
 
 
+def test_a_narrow_shallow_wrinkle_crossing_a_deeper_one_is_found_whole():
+    """bench_wrinkles' field 179 (simulated, no microrelief): a 29 um deep, 0.29 mm wide U
+    wrinkle crossing a 102 um deep V wrinkle. On the band-pass it reads about 11 um, below the
+    25 um minimum depth, so its half-depth reference was the deep wrinkle's floor within 0.75 mm
+    of the crossing, and only one side of it was kept (1.78 mm of 3.99). It runs straight, so
+    it is now held against its own floor: each wrinkle found whole, length within 5%."""
+    from skintopo.evaluation import match_wrinkle
+    from skintopo.synth.surfaces import geometric_measures, random_wrinkle_spec
+    from skintopo.wrinkles import measure_wrinkles
+
+    surface = make_surface(random_wrinkle_spec(np.random.default_rng(179), microrelief=False, crossing=True), seed=179)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    matched = [match_wrinkle(measures, surface.wrinkle_labels == index + 1) for index in range(2)]
+    assert matched[0] is not None and matched[1] is not None and matched[0].id != matched[1].id
+    for wrinkle, found in zip(surface.spec.wrinkles, matched):
+        assert found.length_mm == pytest.approx(geometric_measures(wrinkle)["length_mm"], rel=0.05)
+
+
 def test_short_spurs_and_a_single_wrinkle_are_left_alone():
     """A 3 mm band with a 0.12 mm stub (shorter than its width) and a T whose stem is shorter
     than the minimum length: one label each, unchanged."""
