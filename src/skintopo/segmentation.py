@@ -163,9 +163,15 @@ def segment_wrinkles(
     regions = in_basin.copy()
     pixel = min(height.spacing)
     window = max(3, int(round(width_window_um / pixel)) | 1)
-    straight = np.where(valid, straight_valley_depth(levelled, valid, straight_valley_um, cutoff_um), 0.0) if straight_valley_um else None
-    runs_straight = None if straight is None else straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um
-    regions &= depth >= 0.5 * local_maximum_along_valley(depth, regions, window, height.spacing, min_depth_um, runs_straight)  # half the local maximum
+    straight = straight_direction = None
+    if straight_valley_um:
+        straight, direction = straight_valley_depth(levelled, valid, straight_valley_um, cutoff_um, return_direction=True)
+        straight = np.where(valid, straight, 0.0)
+        straight_direction = np.where(straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um, direction, np.nan)
+        del direction
+    regions &= depth >= 0.5 * local_maximum_along_valley(depth, regions, window, height.spacing, min_depth_um,
+                                                         straight_direction)  # half the local maximum
+    del straight_direction
     labels = label(regions)
     keep = ellipse_axes(labels)[1] * pixel >= min_length_um
     kept = keep[labels] & regions
@@ -199,14 +205,16 @@ def segment_wrinkles(
     return WrinkleSegmentation(labels, lines, extent, np.where(valid, depth, np.nan), parameters)
 
 
-def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, straight=None):
+def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, straight_direction_deg=None):
     """The half-depth reference of each point of ``region``: the maximum of ``depth`` within
     the square ``window`` (pixels) around it over the points of ``region`` whose valley runs
     about the same way (direction bins of 180 / ORIENTATION_BINS degrees: its own and the two
     beside it), when that maximum reaches ``min_depth_um`` or the point lies on a valley that
-    runs straight (``straight``, a boolean map: :func:`straight_valley_depth` at least
-    ``STRAIGHT_VALLEY_CONFIRMATION`` x ``min_depth_um``); otherwise (no such valley, e.g. a
-    furrow's branch beside a wrinkle) the maximum over all of ``region`` in the window.
+    runs straight that way (``straight_direction_deg``: the direction of the straight valley
+    at each point, degrees counter-clockwise from +x, y up, NaN where there is none; the
+    segmentation gives the direction of :func:`straight_valley_depth` where that depth is at
+    least ``STRAIGHT_VALLEY_CONFIRMATION`` x ``min_depth_um``); otherwise (no such valley, e.g.
+    a furrow's branch beside a wrinkle) the maximum over all of ``region`` in the window.
 
     With the square window alone, a shallow wrinkle crossing a deeper one was held against the
     deep one's floor up to half a window from the crossing and cut there, often to less than
@@ -215,9 +223,8 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
     grad d^T), rho = ORIENTATION_SCALE_UM (Bigun & Granlund 1987). A narrow shallow wrinkle
     reads below ``min_depth_um`` on the band-pass (a 29 um deep, 0.29 mm wide one: 11 um) and
     so was still held against a deeper one it crosses; on the straight-valley depth it reads
-    about 23 um, which tells it from a furrow (crossing pairs of bench_wrinkles' seeds
-    0-479, fields with every detectable wrinkle found: 64 -> 67 of 96; held out, 480-959:
-    65 -> 70).
+    about 23 um, which tells it from a furrow; a furrow in a deeper wrinkle's wall lies on
+    that wrinkle's straight valley, which runs another way than the furrow.
     """
     dy, dx = pixel_spacing(spacing)
     gradient_y, gradient_x = np.gradient(depth, dy, dx)
@@ -226,6 +233,11 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
                      ((gradient_x, gradient_x), (gradient_x, gradient_y), (gradient_y, gradient_y)))
     angle = 0.5 * np.arctan2(2 * jxy, jxx - jyy)  # axial direction of the gradient, (-pi/2, pi/2]
     bins = np.floor((angle / np.pi + 0.5) * ORIENTATION_BINS).astype(int) % ORIENTATION_BINS
+    if straight_direction_deg is not None:
+        # the same bins for the straight valley: its gradient's axial direction, with rows down
+        across = np.radians((90.0 - straight_direction_deg + 90.0) % 180.0 - 90.0)
+        straight_bins = np.where(np.isfinite(across), np.floor((np.nan_to_num(across) / np.pi + 0.5) * ORIENTATION_BINS), -9).astype(int)
+        straight_bins[straight_bins >= 0] %= ORIENTATION_BINS
     maximum = scipy.ndimage.maximum_filter(np.where(region, depth, 0.0), size=window)
     half = window // 2
     for b in range(ORIENTATION_BINS):
@@ -240,8 +252,8 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
         members = region[box] & (((bins[box] - b + 1) % ORIENTATION_BINS) <= 2)
         along = scipy.ndimage.maximum_filter(np.where(members, depth[box], 0.0), size=window)[here[box]]
         own = along >= min_depth_um
-        if straight is not None:
-            own |= straight[here] & (along > 0)
+        if straight_direction_deg is not None:
+            own |= (((straight_bins[here] - b + 1) % ORIENTATION_BINS) <= 2) & (straight_bins[here] >= 0) & (along > 0)
         maximum[here] = np.where(own, along, maximum[here])
     return maximum
 
@@ -263,7 +275,7 @@ def _valley_basins(depth, valid, min_depth_um):
     return (flooded >= 1) & (flooded <= n_seeds)
 
 
-def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
+def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um, return_direction=False):
     """Depth of the valleys that run straight for ``length_um`` in some direction: the
     ``levelled`` height (least-squares quadratic form removed) closed with a level segment of that length at each of
     ``STRAIGHT_VALLEY_DIRECTIONS`` angles, the lowest of the closings kept (a valley survives
@@ -271,11 +283,16 @@ def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
     the microrelief (polygons of 0.1-1 mm) are filled by the closings across them and by the
     one along them where they turn. Computed on block means of at most
     ``STRAIGHT_VALLEY_PIXEL_UM`` (the cost grows as the segment's length in pixels times the
-    number of pixels) and repeated back onto the pixels."""
+    number of pixels) and repeated back onto the pixels. With ``return_direction``, also the
+    direction of the closing that kept each point lowest (degrees counter-clockwise from +x, y
+    up): the way its valley runs."""
     factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
     z, coarse_valid, spacing = block_means_of_valid(levelled.z, valid, levelled.spacing, factor)
-    closed, _ = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid)
-    return expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
+    closed, _, lowest = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid, return_lowest_index=True)
+    depth = expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
+    if not return_direction:
+        return depth
+    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS)[lowest], levelled.shape, factor)
 
 
 def _straight_valleys(depth, levelled, valid, taken, min_depth_um, min_length_um, window):

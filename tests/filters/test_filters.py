@@ -230,6 +230,29 @@ def test_line_segment_closing_fills_valleys_narrower_than_the_segment_only():
     np.testing.assert_allclose(across[inside], plane[inside], atol=1e-12)
 
 
+@pytest.mark.parametrize("valley_deg", [0.0, 30.0, 120.0])
+def test_the_lowest_closing_is_the_one_laid_along_a_straight_valley(valley_deg):
+    """A straight groove 40 um wide at a known angle (counter-clockwise from +x, y up) on a
+    level surface: of 12 closings with a 600 um segment, only the ones within a few degrees of
+    the groove leave its floor low, so the index of the lowest points at the groove's angle
+    (the first of equal ones); the extremes are those of the closings taken one by one."""
+    from skintopo.filters import line_segment_closing_extremes
+
+    rows, columns = np.mgrid[0:120, 0:120].astype(float)
+    theta = np.radians(valley_deg)
+    across = (columns - 60) * np.sin(theta) + (rows - 60) * np.cos(theta)  # distance (px) from the groove's axis, rows down
+    z = -10.0 * (np.abs(across) <= 2)
+    angles = np.arange(12) * 15.0
+    lowest, highest, index = line_segment_closing_extremes(z, 10.0, 600.0, angles, return_lowest_index=True)
+    closings = np.stack([line_segment_closing(z, 10.0, 600.0, angle) for angle in angles])
+    np.testing.assert_array_equal(lowest, closings.min(axis=0))
+    np.testing.assert_array_equal(highest, closings.max(axis=0))
+    np.testing.assert_array_equal(index, closings.argmin(axis=0))
+    floor = (np.abs(across) <= 1) & (np.hypot(rows - 60, columns - 60) < 20)
+    assert (angles[index[floor]] == valley_deg).all()
+    np.testing.assert_array_equal(line_segment_closing_extremes(z, 10.0, 600.0, angles)[0], lowest)
+
+
 def test_line_segment_closing_leaves_masked_points_out():
     """A masked point takes no part: the result is that of the map ending there."""
     rng = np.random.default_rng(3)
