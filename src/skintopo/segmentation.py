@@ -87,15 +87,15 @@ REFERENCE_SHORT_CUTOFF_UM = 250.0  # ISO lambda_s series value; keeps most of a 
 # seeds 120-479, fields with every detectable wrinkle found / without a false wrinkle:
 # 16 directions 94.1% / 98.1%, 24: 96.9 / 98.1, 32: 97.8 / 97.2, 48: 98.6 / 96.4,
 # 64: 98.9 / 94.2; the false wrinkles that more directions add are narrow straight furrows.
-# The half-depth reference follows the valley's direction (local_maximum_along_valley): 12 bins
-# of 15 degrees (a point's own bin and the two beside it: valleys 15-37.5 degrees apart count as
-# the same way), structure tensor integrated over 200 um (100 / 200 / 300 um on bench_wrinkles'
-# seeds 0-479, crossing pairs with every detectable wrinkle found, one-to-one matching: 200 um
-# chosen; held out on seeds 480-959, docs/method.md). With 8 bins of 22.5 degrees (up to 56
-# degrees) a deeper wrinkle crossing at 40-55 degrees counted as the same valley and cut the
-# shallow one for a window's half on each side; 8 / 10 / 12 / 16 bins on the crossing fields of
-# seeds 0-479: 59 / 60 / 64 / 63 fields with every detectable wrinkle found (2026-12-04).
-ORIENTATION_BINS = 12
+# The half-depth reference follows the valley's direction (local_maximum_along_valley): 8 bins
+# of 22.5 degrees (a point's own and the two beside it: the same way is within 22.5-56 degrees),
+# structure tensor integrated over 200 um (100 / 200 / 300 um on bench_wrinkles' seeds 0-479,
+# crossing pairs with every detectable wrinkle found, one-to-one matching: 200 um chosen; held
+# out on seeds 480-959, docs/method.md). 12 bins of 15 degrees found more crossing wrinkles
+# (seeds 0-479: fields with every detectable wrinkle 61 -> 68 of 96; held out 70 -> 70) but made
+# wrinkle measures less repeatable between captures of unchanged skin (bench_change_detection:
+# five parameters flagged in 6-10% of 50 trials, was at most 4%): not kept (2026-12-04).
+ORIENTATION_BINS = 8
 ORIENTATION_SCALE_UM = 200.0
 STRAIGHT_VALLEY_DIRECTIONS = tuple(np.arange(48) * 180.0 / 48)
 STRAIGHT_VALLEY_PIXEL_UM = 40.0
