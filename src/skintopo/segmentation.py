@@ -34,9 +34,8 @@ because the height map does not over-segment. Steps:
    the fields), with a false wrinkle in 3.8% of the fields; counting a shallow wrinkle merged
    into a deeper one it crosses as not found (one true wrinkle per measured one), 94.6% and
    90.5% (99.4% and 98.9% outside crossing pairs, 75% and 57% in them; 95.0% and 91.3%,
-   78% and 61% in crossing pairs since the crossing split of 2026-12-04, step 7; 96.1% and
-   93.2%, 83% and 71% since the finer direction bins and the straight-valley reference of
-   step 4).
+   78% and 61% in crossing pairs since the crossing split of 2026-12-04, step 7; 95.3% and
+   91.7%, 79% and 63% since the straight-valley reference of step 4).
 7. Crossing wrinkles (one basin group, so one label) are split, one label per wrinkle
    (:func:`split_crossing_wrinkles`): the skeleton is cut at its junctions and its arms are
    continued by the straightest continuation, through a junction or across a gap.
