@@ -168,7 +168,7 @@ def segment_wrinkles(
     if straight_valley_um:
         straight, direction = straight_valley_depth(levelled, valid, straight_valley_um, cutoff_um, return_direction=True)
         straight = np.where(valid, straight, 0.0)
-        straight_direction = np.where(straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um, direction, np.nan)
+        straight_direction = np.where(straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um, direction, np.float32(np.nan))
         del direction
     regions &= depth >= 0.5 * local_maximum_along_valley(depth, regions, window, height.spacing, min_depth_um,
                                                          straight_direction)  # half the local maximum
@@ -236,9 +236,10 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
     bins = np.floor((angle / np.pi + 0.5) * ORIENTATION_BINS).astype(int) % ORIENTATION_BINS
     if straight_direction_deg is not None:
         # the same bins for the straight valley: its gradient's axial direction, with rows down
-        across = np.radians((90.0 - straight_direction_deg + 90.0) % 180.0 - 90.0)
-        straight_bins = np.where(np.isfinite(across), np.floor((np.nan_to_num(across) / np.pi + 0.5) * ORIENTATION_BINS), -9).astype(int)
-        straight_bins[straight_bins >= 0] %= ORIENTATION_BINS
+        across_deg = (180.0 - np.asarray(straight_direction_deg, np.float32)) % 180.0 - 90.0  # (-90, 90]: -90 and 90 share bin 0
+        straight_bins = np.where(np.isfinite(across_deg), np.floor((np.nan_to_num(across_deg) / 180.0 + 0.5) * ORIENTATION_BINS) % ORIENTATION_BINS,
+                                 -9).astype(np.int8)
+        del across_deg
     maximum = scipy.ndimage.maximum_filter(np.where(region, depth, 0.0), size=window)
     half = window // 2
     for b in range(ORIENTATION_BINS):
@@ -293,7 +294,7 @@ def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um, retu
     depth = expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
     if not return_direction:
         return depth
-    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS)[lowest], levelled.shape, factor)
+    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS, np.float32)[lowest], levelled.shape, factor)  # 4 bytes a pixel
 
 
 def _straight_valleys(depth, levelled, valid, taken, min_depth_um, min_length_um, window):
