@@ -232,14 +232,14 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
     sigma = (ORIENTATION_SCALE_UM / dy, ORIENTATION_SCALE_UM / dx)
     jxx, jxy, jyy = (gaussian_moments(a * b, sigma, ((0, 0),))[0] for a, b in
                      ((gradient_x, gradient_x), (gradient_x, gradient_y), (gradient_y, gradient_y)))
-    angle = 0.5 * np.arctan2(2 * jxy, jxx - jyy)  # axial direction of the gradient, (-pi/2, pi/2]
-    bins = np.floor((angle / np.pi + 0.5) * ORIENTATION_BINS).astype(int) % ORIENTATION_BINS
+    bins = _orientation_bins(0.5 * np.arctan2(2 * jxy, jxx - jyy))  # of the gradient's axial direction
     if straight_direction_deg is not None:
-        # the same bins for the straight valley: its gradient's axial direction, with rows down
-        across_deg = (180.0 - np.asarray(straight_direction_deg, np.float32)) % 180.0 - 90.0  # (-90, 90]: -90 and 90 share bin 0
-        straight_bins = np.where(np.isfinite(across_deg), np.floor((np.nan_to_num(across_deg) / 180.0 + 0.5) * ORIENTATION_BINS) % ORIENTATION_BINS,
-                                 -9).astype(np.int8)
-        del across_deg
+        # the same bins for the straight valleys (-1 where there is none): the axial direction
+        # across each, with rows down, from its direction counter-clockwise from +x, y up
+        straight_direction_deg = np.asarray(straight_direction_deg)
+        straight = np.isfinite(straight_direction_deg)
+        straight_bins = np.full(straight.shape, -1, np.int8)
+        straight_bins[straight] = _orientation_bins(np.radians((180.0 - straight_direction_deg[straight]) % 180.0 - 90.0))
     maximum = scipy.ndimage.maximum_filter(np.where(region, depth, 0.0), size=window)
     half = window // 2
     for b in range(ORIENTATION_BINS):
@@ -255,9 +255,15 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
         along = scipy.ndimage.maximum_filter(np.where(members, depth[box], 0.0), size=window)[here[box]]
         own = along >= min_depth_um
         if straight_direction_deg is not None:
-            own |= (((straight_bins[here] - b + 1) % ORIENTATION_BINS) <= 2) & (straight_bins[here] >= 0) & (along > 0)
+            own |= (straight_bins[here] >= 0) & (((straight_bins[here] - b + 1) % ORIENTATION_BINS) <= 2) & (along > 0)
         maximum[here] = np.where(own, along, maximum[here])
     return maximum
+
+
+def _orientation_bins(across):
+    """The direction bin (0 to ORIENTATION_BINS - 1) of axial angles ``across`` a valley, in
+    radians in [-pi/2, pi/2] (the two ends share bin 0)."""
+    return np.floor((across / np.pi + 0.5) * ORIENTATION_BINS).astype(int) % ORIENTATION_BINS
 
 
 def _valley_basins(depth, valid, min_depth_um):
@@ -290,11 +296,12 @@ def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um, retu
     up): the way its valley runs."""
     factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
     z, coarse_valid, spacing = block_means_of_valid(levelled.z, valid, levelled.spacing, factor)
-    closed, _, lowest = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid, return_lowest_index=True)
+    extremes = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid, return_lowest_index=return_direction)
+    closed = extremes[0]
     depth = expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
     if not return_direction:
         return depth
-    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS, np.float32)[lowest], levelled.shape, factor)  # 4 bytes a pixel
+    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS, np.float32)[extremes[2]], levelled.shape, factor)  # 4 bytes a pixel
 
 
 def _straight_valleys(depth, levelled, valid, taken, min_depth_um, min_length_um, window):
