@@ -430,6 +430,33 @@ def line_segment_footprint(length_um, angle_deg, spacing):
     return footprint
 
 
+def _masked_closing(lowered, invalid, footprint):
+    """Grey dilation then erosion of ``lowered`` (the heights, masked points at -inf) with the
+    flat ``footprint``, masked points +inf in the erosion: SciPy's ``grey_dilation`` /
+    ``grey_erosion`` (mode "constant", cval -inf / +inf) bit for bit, since a maximum or a
+    minimum involves no rounding. Valid points get a finite value (each is in its own
+    segment); masked ones +inf or whatever the erosion left there.
+
+    OpenCV's ``dilate`` / ``erode`` (vectorised over rows, the GIL released): a 31-pixel
+    segment on a 1024 x 1024 map takes 2-8 ms per pass by the angle, against 23-60 ms through
+    SciPy's generic N-d iterator; van Herk / Gil-Werman running extrema would need the same
+    digital line through every pixel, which a rounded line at most angles is not."""
+    # here, not at the top: only the closings need OpenCV (0.08 s to import)
+    import cv2
+
+    kernel = footprint.astype(np.uint8)
+    closed = cv2.dilate(lowered, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf)
+    np.copyto(closed, np.inf, where=invalid)
+    return cv2.erode(closed, kernel, dst=closed, borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
+
+
+def _closing_input(z, mask):
+    """(heights as float64, valid points, the heights with masked points at -inf)."""
+    z = np.asarray(z, dtype=np.float64)
+    valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
+    return z, valid, np.where(valid, z, -np.inf)
+
+
 def line_segment_closing(z, spacing, length_um, angle_deg, mask=None):
     """Closing filter with a level line segment (see the module notes): fills valleys
     narrower than ``length_um`` along ``angle_deg``.
@@ -437,32 +464,23 @@ def line_segment_closing(z, spacing, length_um, angle_deg, mask=None):
     Masked points take no part: they are left out of the maximum and of the minimum (a
     point whose whole segment is masked stays as it was). Returns a new array.
     """
-    # here, not at the top: Numba takes 0.2 s to import
-    from skintopo._filter_kernels import extreme_over_offsets
-
-    z = np.asarray(z, dtype=np.float64)
-    valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
-    footprint = line_segment_footprint(length_um, angle_deg, spacing)
-    rows, columns = (np.asarray(index, dtype=np.intp) - size // 2 for index, size in zip(np.nonzero(footprint), footprint.shape))
-    # grey dilation then erosion with the footprint, masked points -inf / +inf (left out); the
-    # compiled loop gives SciPy's grey_dilation / grey_erosion (mode "constant") bit for bit
-    dilated = np.empty(z.shape)
-    extreme_over_offsets(np.where(valid, z, -np.inf), rows, columns, True, dilated)
-    closed = np.empty(z.shape)
-    extreme_over_offsets(np.where(valid, dilated, np.inf), rows, columns, False, closed)
-    return np.where(valid & np.isfinite(closed), closed, z)
+    z, valid, lowered = _closing_input(z, mask)
+    closed = _masked_closing(lowered, ~valid, line_segment_footprint(length_um, angle_deg, spacing))
+    return np.where(valid, closed, z)
 
 
 def line_segment_closing_extremes(z, spacing, length_um, angles_deg, mask=None, return_lowest_index=False):
     """(lowest, highest): the pointwise minimum and maximum of :func:`line_segment_closing` over
     ``angles_deg``; with ``return_lowest_index``, also the index into ``angles_deg`` of the
     closing that gave the minimum (the first of equal ones): the direction along which a
-    valley survives. The closings run on two threads (scipy.ndimage's min/max filters release
-    the GIL: 16 closings of a 512 x 512 map take 0.42 s on one thread, 0.20 s on two) and are
-    folded in as they come, so two maps are held, not one per angle."""
+    valley survives. The closings run on two threads (OpenCV's filters release the GIL) and
+    are folded in as they come, so two maps are held, not one per angle."""
+    z, valid, lowered = _closing_input(z, mask)
+    invalid = ~valid
     lowest = highest = index = None
     with ThreadPoolExecutor(max_workers=2) as pool:
-        for number, closed in enumerate(pool.map(lambda angle: line_segment_closing(z, spacing, length_um, angle, mask), angles_deg)):
+        closings = pool.map(lambda angle: _masked_closing(lowered, invalid, line_segment_footprint(length_um, angle, spacing)), angles_deg)
+        for number, closed in enumerate(closings):
             if lowest is None:
                 lowest, highest = closed, closed.copy()
                 index = np.zeros(closed.shape, np.int16) if return_lowest_index else None
@@ -471,6 +489,11 @@ def line_segment_closing_extremes(z, spacing, length_um, angles_deg, mask=None, 
                     index[closed < lowest] = number
                 np.minimum(lowest, closed, out=lowest)
                 np.maximum(highest, closed, out=highest)
+    # masked points keep their heights (valid ones are finite in every closing)
+    np.copyto(lowest, z, where=invalid)
+    np.copyto(highest, z, where=invalid)
+    if return_lowest_index:
+        index[invalid] = 0
     return (lowest, highest, index) if return_lowest_index else (lowest, highest)
 
 
