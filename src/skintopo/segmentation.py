@@ -69,7 +69,6 @@ from skintopo.filters import (
     coarse_areal_gaussian_filter,
     ellipse_axes,
     expanded_blocks,
-    gaussian_bandpass,
     gaussian_moments,
     level,
     line_segment_closing_extremes,
@@ -156,10 +155,12 @@ def segment_wrinkles(
     # field's edges the Gaussian regression cannot follow curvature, and its residual there
     # would look like valleys.
     levelled = level(height, order=2)
-    band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um)
-    valid = band.mask
-    depth = np.where(valid, -band.z, 0.0)
-    del band  # its heights are the depth's: freed early (8 bytes a pixel)
+    valid = levelled.mask
+    # the band-pass: lambda_s low-pass minus the lambda_c one, the latter on block means
+    # (coarse_areal_gaussian_filter: the long-wave mean line is smooth on the scale of blocks)
+    depth = coarse_areal_gaussian_filter(levelled.z, levelled.spacing, cutoff_um, valid, samples_per_sigma=16)
+    depth -= areal_gaussian_filter(levelled.z, levelled.spacing, short_cutoff_um, valid)
+    depth = np.where(valid, depth, 0.0)
     in_basin = _valley_basins(depth, valid, min_depth_um)
     regions = in_basin.copy()
     pixel = min(height.spacing)
