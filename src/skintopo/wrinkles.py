@@ -181,7 +181,7 @@ class WrinkleFrame:
         if order == 0:
             rows = np.clip(np.floor(self.rows + 0.5), 0, image.shape[0] - 1).astype(np.intp)
             columns = np.clip(np.floor(self.columns + 0.5), 0, image.shape[1] - 1).astype(np.intp)
-            return np.asarray(image, float)[rows, columns]
+            return np.asarray(image)[rows, columns].astype(float)  # only the samples converted, not the map
         return scipy.ndimage.map_coordinates(np.asarray(image, float), [self.rows, self.columns], order=order, mode="nearest",
                                              prefilter=not prefiltered)
 
