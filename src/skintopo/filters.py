@@ -224,13 +224,18 @@ def gaussian_highpass(height: HeightMap, cutoff_um):
     return HeightMap(height.z - low, height.spacing, height.mask)
 
 
-def gaussian_bandpass(height: HeightMap, short_cutoff_um, long_cutoff_um):
+def gaussian_bandpass(height: HeightMap, short_cutoff_um, long_cutoff_um, long_samples_per_sigma=None):
     """Band-pass: low-pass at ``short_cutoff_um`` (lambda_s, removes fine detail) minus the
-    low-pass at ``long_cutoff_um`` (lambda_c, removes form and waviness)."""
+    low-pass at ``long_cutoff_um`` (lambda_c, removes form and waviness). With
+    ``long_samples_per_sigma``, the lambda_c low-pass is :func:`coarse_areal_gaussian_filter`
+    with that many samples per Gaussian sigma (block means; much cheaper for a wide cut-off)."""
     if not short_cutoff_um < long_cutoff_um:
         raise SkinTopoError(f"the short cut-off ({short_cutoff_um} um) must be below the long one ({long_cutoff_um} um)")
     fine = areal_gaussian_filter(height.z, height.spacing, short_cutoff_um, height.mask)
-    coarse = areal_gaussian_filter(height.z, height.spacing, long_cutoff_um, height.mask)
+    if long_samples_per_sigma is None:
+        coarse = areal_gaussian_filter(height.z, height.spacing, long_cutoff_um, height.mask)
+    else:
+        coarse = coarse_areal_gaussian_filter(height.z, height.spacing, long_cutoff_um, height.mask, long_samples_per_sigma)
     return HeightMap(fine - coarse, height.spacing, height.mask)
 
 

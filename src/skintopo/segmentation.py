@@ -75,6 +75,7 @@ from skintopo.filters import (
     coarse_areal_gaussian_filter,
     ellipse_axes,
     expanded_blocks,
+    gaussian_bandpass,
     gaussian_moments,
     level,
     line_segment_closing_extremes,
@@ -100,6 +101,7 @@ REFERENCE_SHORT_CUTOFF_UM = 250.0  # ISO lambda_s series value; keeps most of a 
 # wrinkle measures less repeatable between captures of unchanged skin (bench_change_detection:
 # five parameters flagged in 6-10% of 50 trials, was at most 4%): not kept (2026-12-04).
 ORIENTATION_BINS = 8
+LONG_WAVE_SAMPLES_PER_SIGMA = 16  # the band-pass's lambda_c mean line on block means (module notes, step 1)
 ORIENTATION_SCALE_UM = 200.0
 STRAIGHT_VALLEY_DIRECTIONS = tuple(np.arange(48) * 180.0 / 48)
 STRAIGHT_VALLEY_PIXEL_UM = 40.0
@@ -161,12 +163,11 @@ def segment_wrinkles(
     # field's edges the Gaussian regression cannot follow curvature, and its residual there
     # would look like valleys.
     levelled = level(height, order=2)
-    valid = levelled.mask
-    # the band-pass: lambda_s low-pass minus the lambda_c one, the latter on block means
-    # (coarse_areal_gaussian_filter: the long-wave mean line is smooth on the scale of blocks)
-    depth = coarse_areal_gaussian_filter(levelled.z, levelled.spacing, cutoff_um, valid, samples_per_sigma=16)
-    depth -= areal_gaussian_filter(levelled.z, levelled.spacing, short_cutoff_um, valid)
-    depth = np.where(valid, depth, 0.0)
+    # the lambda_c mean line on block means (module notes, step 1): smooth on their scale
+    band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um, long_samples_per_sigma=LONG_WAVE_SAMPLES_PER_SIGMA)
+    valid = band.mask
+    depth = np.where(valid, -band.z, 0.0)
+    del band  # its heights are the depth's: freed early (8 bytes a pixel)
     in_basin = _valley_basins(depth, valid, min_depth_um)
     regions = in_basin.copy()
     pixel = min(height.spacing)

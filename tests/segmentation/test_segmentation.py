@@ -206,6 +206,8 @@ def test_segmentation_of_a_simulated_forehead_against_its_truth():
     assert segment_wrinkles(height, min_depth_um=200.0).count == 0  # deeper than every wrinkle
     with pytest.raises(SkinTopoError, match="minimum depth must be positive and minimum length >= 0, got 0.0, 1500.0"):
         segment_wrinkles(height, min_depth_um=0.0)
+    with pytest.raises(SkinTopoError, match=r"the short cut-off \(9000.0 um\) must be below the long one \(8000.0 um\)"):
+        segment_wrinkles(height, short_cutoff_um=9000.0)
 
 
 def test_skin_around_wrinkles_is_the_valid_skin_beyond_the_margin():
