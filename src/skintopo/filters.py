@@ -444,9 +444,10 @@ def _masked_closing(lowered, invalid, footprint):
 
     OpenCV's ``dilate`` / ``erode`` (vectorised over rows, the GIL released): a 31-pixel
     segment on a 1024 x 1024 map takes 2-8 ms per pass by the angle (23 ms at 22.5 degrees
-    through SciPy's generic N-d iterator, 2026-12-04), as fast as the compiled loop it replaces
-    without its 0.6 s of loading per process (Numba's import and cache); van Herk / Gil-Werman running extrema would need the same
-    digital line through every pixel, which a rounded line at most angles is not."""
+    through SciPy's generic N-d iterator, 2026-12-04), as fast as the compiled loop it
+    replaces without its 0.6 s of loading per process (Numba's import and cache). Van Herk /
+    Gil-Werman running extrema would need the same digital line through every pixel, which a
+    rounded line at most angles is not."""
     # here, not at the top: only the closings need OpenCV (0.08 s to import)
     import cv2
 

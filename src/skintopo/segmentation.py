@@ -259,13 +259,18 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
         # half a window beyond every point)
         rows, columns = np.nonzero(here)
         box = (slice(max(rows.min() - half, 0), rows.max() + half + 1), slice(max(columns.min() - half, 0), columns.max() + half + 1))
-        members = region[box] & (((bins[box] - b + 1) % ORIENTATION_BINS) <= 2)
+        members = region[box] & _same_way(bins[box], b)
         along = scipy.ndimage.maximum_filter(np.where(members, depth[box], 0.0), size=window)[here[box]]
         own = along >= min_depth_um
         if straight_direction_deg is not None:
-            own |= (straight_bins[here] >= 0) & (((straight_bins[here] - b + 1) % ORIENTATION_BINS) <= 2) & (along > 0)
+            own |= (straight_bins[here] >= 0) & _same_way(straight_bins[here], b) & (along > 0)
         maximum[here] = np.where(own, along, maximum[here])
     return maximum
+
+
+def _same_way(bins, b):
+    """Where direction ``bins`` are bin ``b`` or a bin beside it (modulo ORIENTATION_BINS)."""
+    return ((bins - b + 1) % ORIENTATION_BINS) <= 2
 
 
 def _orientation_bins(across):
