@@ -95,7 +95,8 @@ PLAUSIBLE_RELIEF = (1 / 3, 3.0)  # physics relief / the plain bands' mean relief
 PLAUSIBLE_CORRELATION = 0.5  # least correlation of the physics height with the plain bands' mean height
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
-ROUGHNESS_GRID = np.linspace(0.15, 0.7, 12)  # Beckmann m searched (skin 0.3-0.45, oily skin smoother: field notes)
+ROUGHNESS_GRID = np.linspace(0.15, 0.5, 8)  # Beckmann m searched: skin 0.3-0.45 (field notes), oily skin smoother; a
+# broader lobe is not skin's and took up what the model missed (Mitsuba diffuse renders: m 0.55-0.7)
 SHAPE_BOUNDS = (0.6, 50.0)  # Matern shape a: 3/2 = exponential profile, 50 ~ Gaussian
 
 
