@@ -67,7 +67,10 @@ worse than the best band. The highlight fit assumes a white highlight; a
 slightly coloured one (Fresnel dispersion) cannot be told from a stronger white one plus a
 skin-coloured part, so its scale comes out high and the deepest wrinkles on dark skin come
 out too shallow; a smooth coat (Beckmann alpha 0.2) defeats the fit. The kernel fit needs
-the field to span several times the red diffusion length (a 5 mm field holds it). The
+the field to span several times the red diffusion length (a 5 mm field holds it), and it
+is made from the plain bands, where interreflection on the microrelief (stronger in the
+brighter bands) looks like a red blur: on deep-wrinkled diffuse renders it finds kernels
+where there is no scattering (Mitsuba forehead-high: w 0.8-0.95). The
 iteration often stops at its pass limit before the 2% tolerance (reported).
 """
 
