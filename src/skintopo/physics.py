@@ -458,7 +458,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         if (changes and changes[-1] < tolerance) or k == iterations:
             break  # no next pass to prepare
         if interreflection:
-            gather = _Interreflection(height, radius_um)
+            gather = _Interreflection(HeightMap(z, height.spacing), radius_um)  # z: its holes already filled
             reflectance = albedo_pattern.astype(np.float32)
             direct_spectra = [fourier.forward(images[band] - fourier.apply(albedo_level[band] * reflectance
                                                                            * gather.gather(images[band] - specular_images), transfer[band]))
