@@ -21,7 +21,9 @@ Three integrators:
   4-pixel period; the fourth-order rule keeps fine detail. This is the default: most
   accurate on the analytic tests at the speed of an FFT.
 * :func:`masked_least_squares` -- the same least-squares problem restricted to an arbitrary
-  (non-rectangular) mask, solved with algebraic multigrid (pyamg).
+  (non-rectangular) mask, solved by conjugate gradients preconditioned with the
+  rectangle's DCT solve, or, where that does not converge quickly (masks of thin strips or
+  scattered pixels), by algebraic multigrid (pyamg).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from skintopo.heightmap import HeightMap, pixel_spacing
 
 MIN_NZ = 1e-3  # normals more grazing than ~89.9 degrees give no usable gradient
 _WORKERS = -1  # scipy.fft: use every core
+DCT_CG_MAX_ITERATIONS = 60  # masked least squares: DCT-preconditioned CG converges in 26-33 on skin masks; else multigrid
 
 
 def height_normals(z, spacing):
@@ -213,9 +216,7 @@ def dct_poisson(p, q, spacing=1.0):
     divergence[:-1, :] -= dy_edges
     divergence[1:, :] += dy_edges
     f_hat = scipy.fft.dctn(divergence, type=2, norm="ortho", workers=_WORKERS)
-    eig = (2 - 2 * np.cos(np.pi * np.arange(columns) / columns))[None, :] + (
-        2 - 2 * np.cos(np.pi * np.arange(rows) / rows)
-    )[:, None]
+    eig = _neumann_laplacian_eigenvalues(rows, columns)
     eig[0, 0] = 1.0
     f_hat /= eig
     f_hat[0, 0] = 0.0
@@ -224,15 +225,52 @@ def dct_poisson(p, q, spacing=1.0):
     return z
 
 
+def _neumann_laplacian_eigenvalues(rows, columns):
+    """Eigenvalues of the 5-point graph Laplacian of a rows x columns grid with free (Neumann)
+    boundaries, in the order of the type-II DCT's coefficients."""
+    return (2 - 2 * np.cos(np.pi * np.arange(columns) / columns))[None, :] + (2 - 2 * np.cos(np.pi * np.arange(rows) / rows))[:, None]
+
+
+def _dct_preconditioned_cg(laplacian, rhs, valid, tolerance, max_iterations=DCT_CG_MAX_ITERATIONS):
+    """Solve the masked graph Laplacian system by conjugate gradients preconditioned with the
+    whole rectangle's Laplacian, inverted exactly by the DCT (the residual put on the grid,
+    zero outside the mask, divided by the eigenvalues, read back on the mask). The two
+    operators differ only along the mask's edges, so on skin masks and shadow holes CG
+    converges in about 30 iterations (1 MP: 0.7-1.1 s against 3.5-7.9 s for pyamg, the same
+    heights within 1e-8 um; measured on a disc, two regions, blobs and 1-pixel holes). On
+    masks of thin strips or scattered pixels it does not: None after ``max_iterations``.
+    The system is singular (one constant per connected region) but consistent, which CG
+    handles; the constants are removed by the caller. Hand-written because no library
+    offers a DCT preconditioner for a masked Poisson problem; the CG is SciPy's."""
+    import scipy.sparse.linalg
+
+    eig = _neumann_laplacian_eigenvalues(*valid.shape)
+    eig[0, 0] = np.inf  # the constant: left to the caller
+    grid = np.zeros(valid.shape)
+
+    def precondition(residual):
+        grid[valid] = residual
+        solved = scipy.fft.idctn(scipy.fft.dctn(grid, type=2, norm="ortho", workers=_WORKERS) / eig, type=2, norm="ortho",
+                                 workers=_WORKERS)
+        return solved[valid]
+
+    size = rhs.size
+    preconditioner = scipy.sparse.linalg.LinearOperator((size, size), matvec=precondition, dtype=float)
+    solution, info = scipy.sparse.linalg.cg(laplacian, rhs, rtol=tolerance, atol=0.0, maxiter=max_iterations, M=preconditioner)
+    return solution if info == 0 else None
+
+
 def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
-    """Least-squares integration over an arbitrary mask (sparse solve, algebraic multigrid).
+    """Least-squares integration over an arbitrary mask (sparse solve).
 
     Minimises sum over edges with both ends in the mask of (z_j - z_i - d_ij)^2 (d_ij as in
     :func:`edge_differences`, trapezoid rule where the fourth-order stencil would leave the
-    mask). The normal equations D^T D z = D^T d form a graph Laplacian, solved by smoothed-
-    aggregation multigrid-preconditioned conjugate gradients (pyamg). Each connected region
-    of the mask is set to mean zero: the height offset between disconnected regions cannot
-    be known from slopes.
+    mask). The normal equations D^T D z = D^T d form a graph Laplacian, solved by conjugate
+    gradients preconditioned with the rectangle's DCT solve (``_dct_preconditioned_cg``), or,
+    when that has not converged in ``DCT_CG_MAX_ITERATIONS``, by smoothed-aggregation
+    multigrid-preconditioned conjugate gradients (pyamg). Each connected region of the mask
+    is set to mean zero: the height offset between disconnected regions cannot be known from
+    slopes.
 
     Parameters
     ----------
@@ -250,8 +288,6 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     ndarray
         Height in micrometres, NaN outside the mask.
     """
-    import pyamg
-
     gx, gy = _array_gradients(p, q, spacing)
     valid = np.isfinite(gx) & np.isfinite(gy)
     if mask is not None:
@@ -286,15 +322,18 @@ def masked_least_squares(p, q, spacing=1.0, mask=None, *, tolerance=1e-12):
     )
     laplacian = (difference.T @ difference).tocsr()
     rhs = difference.T @ values
-    # Pin the null space (one constant per connected region) with a tiny diagonal shift on one
-    # pixel of each region; the per-region mean is removed afterwards.
     labels, n_regions = scipy.ndimage.label(valid)
     pixel_labels = labels[valid]
-    first_of_region = np.unique(pixel_labels, return_index=True)[1]
-    pin = scipy.sparse.csr_matrix((np.ones(first_of_region.size), (first_of_region, first_of_region)), shape=laplacian.shape)
-    system = (laplacian + pin).tocsr()
-    solver = pyamg.smoothed_aggregation_solver(system, symmetry="symmetric")
-    solution = solver.solve(rhs, tol=tolerance, accel="cg", maxiter=500)
+    solution = _dct_preconditioned_cg(laplacian, rhs, valid, tolerance)
+    if solution is None:
+        import pyamg
+
+        # Pin the null space (one constant per connected region) with a diagonal shift on one
+        # pixel of each region; the per-region mean is removed afterwards.
+        first_of_region = np.unique(pixel_labels, return_index=True)[1]
+        pin = scipy.sparse.csr_matrix((np.ones(first_of_region.size), (first_of_region, first_of_region)), shape=laplacian.shape)
+        solver = pyamg.smoothed_aggregation_solver((laplacian + pin).tocsr(), symmetry="symmetric")
+        solution = solver.solve(rhs, tol=tolerance, accel="cg", maxiter=500)
     region_sum = np.bincount(pixel_labels, weights=solution, minlength=n_regions + 1)
     region_count = np.bincount(pixel_labels, minlength=n_regions + 1)
     solution -= (region_sum / np.maximum(region_count, 1))[pixel_labels]

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import scipy.ndimage
 
+from skintopo import height as height_module
 from skintopo.errors import SkinTopoError
 from skintopo.height import (
     INTEGRATORS,
@@ -82,7 +83,14 @@ def test_edge_differences_are_fourth_order():
     assert order > 4.5  # local error O(h^5), global O(h^4)
 
 
-def test_masked_least_squares_on_a_disc_with_two_regions():
+@pytest.mark.parametrize("solver", ["dct-preconditioned-cg", "multigrid"])
+def test_masked_least_squares_on_a_disc_with_two_regions(solver, monkeypatch):
+    import pyamg
+
+    if solver == "multigrid":  # the fallback, as if CG had not converged
+        monkeypatch.setattr(height_module, "_dct_preconditioned_cg", lambda *args: None)
+    else:  # the fast path must not need multigrid on a disc
+        monkeypatch.setattr(pyamg, "smoothed_aggregation_solver", None)
     z, p, q = paraboloid_with_wrinkles()
     rows, columns = z.shape
     r, c = np.mgrid[:rows, :columns]
@@ -96,6 +104,24 @@ def test_masked_least_squares_on_a_disc_with_two_regions():
     for region in (disc, island):
         assert rms_error_after_offset(estimate, z, region) <= 1e-4 * np.ptp(z[region])
         assert abs(estimate[region].mean()) < 1e-9  # each region: mean zero (offset unknowable)
+
+
+def test_masked_least_squares_falls_back_to_multigrid_on_thin_strips(monkeypatch):
+    """A comb of 1-pixel columns joined by rows: the rectangle's DCT solve is a poor
+    preconditioner there, CG does not converge in DCT_CG_MAX_ITERATIONS, multigrid solves it."""
+    import pyamg
+
+    calls = []
+    solver = pyamg.smoothed_aggregation_solver
+    monkeypatch.setattr(pyamg, "smoothed_aggregation_solver", lambda *args, **kwargs: calls.append(1) or solver(*args, **kwargs))
+    z, p, q = paraboloid_with_wrinkles()
+    comb = np.zeros(z.shape, bool)
+    comb[:, ::3] = True
+    comb[::40, :] = True
+    estimate = masked_least_squares(p, q, SPACING, comb)
+    assert calls == [1]
+    assert np.isnan(estimate[~comb]).all()
+    assert rms_error_after_offset(estimate, z, comb) <= 1e-3 * np.ptp(z[comb])
 
 
 def test_auto_integrator_uses_the_mask():
