@@ -12,6 +12,7 @@ from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
 from skintopo.normals import photometric_stereo
 from skintopo.heightmap import HeightMap
+from skintopo import physics
 from skintopo.physics import IDENTITY_KERNEL, ScatteringKernel, _Interreflection, band_transfer_ratios, estimate_scattering_kernels, physics_height
 from skintopo.synth import make_surface, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.render import RenderSettings, default_lights
@@ -245,3 +246,32 @@ def test_physics_removes_interreflection_from_deep_wrinkles_of_a_second_renderer
                             highlights=False)
     error = evaluate_height(result.height, surface.height)["rms_height_error_um"]
     assert error < 2 * direct_error, (error, direct_error)
+
+
+@pytest.mark.parametrize("factor", [1, 2, 3, 4])
+def test_block_means_equal_the_reshaped_mean(factor):
+    stack = np.random.default_rng(factor).random((3, 37, 50)).astype(np.float32)
+    rows, columns = 37 // factor * factor, 50 // factor * factor
+    expected = stack[:, :rows, :columns].reshape(3, rows // factor, factor, columns // factor, factor).mean(axis=(2, 4))
+    found = physics._block_means(stack, factor)
+    assert found.shape == expected.shape and found.dtype == np.float32
+    np.testing.assert_allclose(found, expected, rtol=1e-6)
+
+
+def test_a_large_field_searches_the_highlight_roughness_on_block_means(monkeypatch):
+    """Above MAX_SPECULAR_FIT_PIXELS the roughness is searched on 2 x 2 block means and the
+    scale fitted at full resolution. Made to take that path at 256 x 256 (a 128 x 128 search),
+    a light forehead gets a roughness one grid step from the full search's (0.3 against 0.25;
+    the simulator's is 0.35) and a height no worse against the truth (1.14 against 1.62 um)."""
+    surface, images, lights = _simulated("forehead-moderate", "light", seed=1)
+    bands = {b: images[b] for b in BANDS}
+    full = physics_height(dict(bands), lights, 20.0)
+    grids = []
+    lobe_fit = physics._LobeFit
+    monkeypatch.setattr(physics, "MAX_SPECULAR_FIT_PIXELS", 128 * 128)
+    monkeypatch.setattr(physics, "_LobeFit", lambda fourier, *args: grids.append(fourier.shape) or lobe_fit(fourier, *args))
+    coarse = physics_height(dict(bands), lights, 20.0)
+    assert (128, 128) in grids and (256, 256) in grids
+    assert abs(coarse.specular["roughness"] - full.specular["roughness"]) <= 0.051 and coarse.specular["scale"] > 0
+    errors = [evaluate_height(result.height, surface.height)["rms_height_error_um"] for result in (full, coarse)]
+    assert errors[1] <= errors[0] + 0.05, errors
