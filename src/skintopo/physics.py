@@ -99,8 +99,9 @@ PLAUSIBLE_CORRELATION = 0.5  # least correlation of the physics height with the 
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
 MAX_INTERREFLECTION_PIXELS = 256 * 256  # larger fields gather interreflection on a coarser grid
 MAX_SPECULAR_FIT_PIXELS = 512 * 512  # larger fields search the highlight lobe's roughness on a coarser grid
-ROUGHNESS_GRID = np.linspace(0.15, 0.5, 8)  # Beckmann m searched: skin 0.3-0.45 (field notes), oily skin smoother; a
-# broader lobe is not skin's and took up what the model missed (Mitsuba diffuse renders: m 0.55-0.7)
+ROUGHNESS_GRID = np.linspace(0.15, 0.5, 15)  # Beckmann m searched: skin 0.3-0.45 (field notes), oily skin smoother; a
+# broader lobe is not skin's and took up what the model missed (Mitsuba diffuse renders: m 0.55-0.7). Steps of 0.025:
+# with steps of 0.05 the height moved by 0.3-3 um between neighbouring m (simulator default-v1: mean 3.45 -> 2.48 um)
 SHAPE_BOUNDS = (0.6, 50.0)  # Matern shape a: 3/2 = exponential profile, 50 ~ Gaussian
 
 
@@ -568,13 +569,13 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     Fields of more than ``MAX_SPECULAR_FIT_PIXELS`` search m on block means of J_c and of the
     lobe (computed from the full-resolution normals, then averaged: the block mean commutes
     with the blurs, so both sides are the same linear images of the full-resolution ones seen
-    through the block's box filter), and fit k for that m at full resolution: the search was
-    most of the fit, and the fit 40% of the method's time at 1000 x 1000. k itself is not
-    taken from the block means: there it came out 2% high and the heights 0.3-0.8 um RMS worse
-    (three simulated 1000 x 1000 foreheads, whose roughness the block means chose as the full
-    search did). The choice can move by a grid step: four 256 x 256 foreheads made to search
-    on 128 x 128 chose as the full search on three, and 0.3 for 0.25 on the fourth (the
-    simulator's is 0.35; height error 1.62 -> 1.14 um).
+    through the block's box filter), then choose between that m and its two neighbours, and
+    fit k, at full resolution: the search was most of the fit, and the fit 40% of the
+    method's time at 1000 x 1000. The block means alone chose one step off the full search on
+    2 of 4 simulated 1000 x 1000 foreheads (RMS error 2.28 -> 3.00 and 12.25 -> 16.50 um); with
+    the neighbours decided at full resolution all 4 get the full search's m, k and height (and
+    4 of 4 256 x 256 foreheads made to search on 128 x 128). k is not taken from the block
+    means: there it came out 2% high and the heights 0.3-0.8 um RMS worse.
     """
     lobes = SpecularLobe(normals, lights, visible)
     fit = _LobeFit(fourier, bands.spectra, bands.gain, lobes)
@@ -588,7 +589,8 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     last = len(ROUGHNESS_GRID) - 1
     best = max(range(0, last + 1, 2), key=search.explained)
     best = max((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=search.explained)
-    fit.explained(best)
+    if search is not fit:  # the block means find the neighbourhood; the full resolution decides within it
+        best = max((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=fit.explained)
     _, scale, lobe = fit.fits[best]
     return {"roughness": float(ROUGHNESS_GRID[best]), "scale": float(scale)}, scale * lobe
 
