@@ -587,10 +587,14 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
         search = _LobeFit(coarse, [coarse.forward(_block_means(direct, factor)) for direct in bands.images],
                           _band_gains(bands.albedo_level, transfer).astype(np.float32), lambda roughness: _block_means(lobes(roughness), factor))
     last = len(ROUGHNESS_GRID) - 1
+
+    def with_neighbours(k):
+        return [j for j in (k - 1, k, k + 1) if 0 <= j <= last]
+
     best = max(range(0, last + 1, 2), key=search.explained)
-    best = max((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=search.explained)
+    best = max(with_neighbours(best), key=search.explained)
     if search is not fit:  # the block means find the neighbourhood; the full resolution decides within it
-        best = max((k for k in (best - 1, best, best + 1) if 0 <= k <= last), key=fit.explained)
+        best = max(with_neighbours(best), key=fit.explained)
     _, scale, lobe = fit.fits[best]
     return {"roughness": float(ROUGHNESS_GRID[best]), "scale": float(scale)}, scale * lobe
 
