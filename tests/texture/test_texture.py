@@ -460,6 +460,27 @@ def test_spatial_parameters_of_an_oblique_sinusoid(phi):
     assert np.isnan(values["Str"]) and abs(values["Std"] - phi) <= 0.5
 
 
+@pytest.mark.parametrize("stripes", [0.0, 3.0])
+def test_spatial_parameters_do_not_depend_on_the_lag_window(monkeypatch, stripes):
+    """The lag window is only a speed-up: short-correlated relief (its region well inside the
+    window) and the same with long oblique stripes (the circular estimate reaching its border:
+    every lag at once) give the Sal, Str and Std of the autocorrelation over every lag."""
+    from skintopo.texture import areal
+
+    rows, columns = np.mgrid[:300, :260]
+    z = scipy.ndimage.gaussian_filter(np.random.default_rng(5).normal(size=(300, 260)), (3.0, 1.5))
+    z = z / z.std() + stripes * np.sin(2 * np.pi * (columns * 0.8 + rows * 0.6) / 150.0)
+    height = HeightMap(z, 2.0)
+    window = areal._decay_window(areal._mean_removed(height), 0.2)
+    assert (window is None) == (stripes > 0)  # both paths are taken
+    windowed = spatial_parameters(height)
+    monkeypatch.setattr(areal, "_decay_window", lambda z, s: None)
+    every_lag = spatial_parameters(height)
+    assert windowed["Sal"] == pytest.approx(every_lag["Sal"], rel=1e-9)
+    assert windowed["Std"] == every_lag["Std"]
+    assert windowed["Str"] == pytest.approx(every_lag["Str"], rel=1e-9, nan_ok=True)
+
+
 def test_fractal_estimators_fill_missing_points_from_their_nearest_neighbour():
     """Gwyddion's estimators work on complete fields: a map with missing points gives the
     dimension of the same map with each missing point set to its nearest valid neighbour's

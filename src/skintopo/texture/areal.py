@@ -210,7 +210,10 @@ def _decay_window(z, s):
     """Lags (rows, columns) that the central region of the autocorrelation above s probably
     needs: estimated from the circular (unpadded) autocorrelation of the map block-averaged
     to about 256 pixels across, with a 50% margin (the circular estimate decays sooner than
-    the unbiased one). Only a guess: the caller checks it and falls back to every lag."""
+    the unbiased one). Only a guess: the caller checks it and falls back to every lag. None
+    when the circular estimate's region already reaches its own border: the window then
+    mostly does too (on 9 of 9 simulated 1024 x 1024 foreheads), and computing it first was wasted
+    (spatial parameters of those 0.18-0.30 s with it, 0.16-0.22 s without; same values)."""
     factor = max(1, min(z.shape) // 256)
     z = block_mean(z, factor)
     rows, columns = z.shape
@@ -219,7 +222,10 @@ def _decay_window(z, s):
     half_y, half_x = (rows - 1) // 2, (columns - 1) // 2
     acf = _centred_lags(circular, half_y, half_x)
     labels, _ = scipy.ndimage.label(acf > s * acf[half_y, half_x])
-    region_rows, region_cols = np.nonzero(labels == labels[half_y, half_x])
+    region = labels == labels[half_y, half_x]
+    if region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any():
+        return None
+    region_rows, region_cols = np.nonzero(region)
     extent_y = (np.abs(region_rows - half_y).max() + 1) * factor
     extent_x = (np.abs(region_cols - half_x).max() + 1) * factor
     return int(1.5 * extent_y) + 4, int(1.5 * extent_x) + 4
@@ -233,13 +239,14 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
     value; Str = shortest / longest such distance (NaN when the central region above s
     reaches the border: the slowest decay is not inside the field). The autocorrelation is
     first computed only for the lags the circular estimate says the central region needs;
-    when the region reaches that window it is computed for every lag (the values are the
-    same, only the FFT is larger).
+    when the region reaches that window, or the estimate reaches its own border, it is
+    computed for every lag (the values are the same, only the FFT is larger).
     """
     dy, dx = height.spacing
     rows, columns = height.shape
     z = _mean_removed(height)
-    for max_lag in (_decay_window(z, s), (rows - 1, columns - 1)):
+    window = _decay_window(z, s)
+    for max_lag in ([window] if window is not None else []) + [(rows - 1, columns - 1)]:
         acf = _autocorrelation(z, height.mask, max_lag)
         centre = np.array([(acf.shape[0] - 1) // 2, (acf.shape[1] - 1) // 2])
         threshold = s * acf[centre[0], centre[1]]
