@@ -206,6 +206,11 @@ def _centred_lags(circular, lag_y, lag_x):
     return out
 
 
+def _touches_border(region):
+    """Whether a boolean region reaches the first or last row or column."""
+    return bool(region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any())
+
+
 def _decay_window(z, s):
     """Lags (rows, columns) that the central region of the autocorrelation above s probably
     needs: estimated from the circular (unpadded) autocorrelation of the map block-averaged
@@ -223,7 +228,7 @@ def _decay_window(z, s):
     acf = _centred_lags(circular, half_y, half_x)
     labels, _ = scipy.ndimage.label(acf > s * acf[half_y, half_x])
     region = labels == labels[half_y, half_x]
-    if region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any():
+    if _touches_border(region):
         return None
     region_rows, region_cols = np.nonzero(region)
     extent_y = (np.abs(region_rows - half_y).max() + 1) * factor
@@ -252,7 +257,7 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
         threshold = s * acf[centre[0], centre[1]]
         labels, _ = scipy.ndimage.label(acf > threshold)  # NaN lags compare False
         region = labels == labels[centre[0], centre[1]]
-        touches = region[0].any() or region[-1].any() or region[:, 0].any() or region[:, -1].any()
+        touches = _touches_border(region)
         if not touches:
             break
     region_rows, region_cols = np.nonzero(region)
