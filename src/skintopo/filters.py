@@ -373,24 +373,37 @@ def expanded_blocks(coarse, shape, factor):
     return coarse[np.arange(rows)[:, None] // factor, np.arange(columns)[None, :] // factor]
 
 
-def block_mean(image, factor):
-    """Means over factor x factor blocks, the image zero-padded to whole blocks (weigh by the
-    block mean of a validity image to undo the padding where it matters). Summed with strided
-    slices: about 4x faster than a reshape and ``mean(axis=(1, 3))``."""
+def block_mean(image, factor, partial_blocks="pad"):
+    """Means over ``factor`` x ``factor`` blocks of the last two axes (one image or a stack).
+
+    ``partial_blocks="pad"`` zero-pads the image to whole blocks (weigh by the block mean of a
+    validity image to undo the padding where it matters); ``"trim"`` leaves out the rows and
+    columns beyond the last whole block. Floating-point input keeps its precision (float32
+    stays float32); other input is averaged in float64. Summed with strided slices, rows then
+    columns (a loop over offsets in the block, not over pixels): 4-8x faster than a reshape and
+    ``mean`` over the block axes, whose reduction runs along non-contiguous axes (measured at
+    1000 x 1000); equal to it up to rounding."""
+    if partial_blocks not in ("pad", "trim"):
+        raise ValueError(f"partial_blocks must be 'pad' or 'trim', not {partial_blocks!r}")
+    image = np.asarray(image)
+    dtype = image.dtype if np.issubdtype(image.dtype, np.floating) else np.dtype(np.float64)
+    image = image.astype(dtype, copy=False)
     if factor == 1:
-        return np.asarray(image, dtype=float)
-    rows, columns = -(-image.shape[0] // factor), -(-image.shape[1] // factor)
-    padded = np.asarray(image, dtype=float)
-    if padded.shape != (rows * factor, columns * factor):
-        padded = np.zeros((rows * factor, columns * factor))
-        padded[: image.shape[0], : image.shape[1]] = image
-    by_rows = padded[::factor].copy()
+        return image
+    rows, columns = image.shape[-2:]
+    if partial_blocks == "trim":
+        image = image[..., : rows // factor * factor, : columns // factor * factor]
+    elif rows % factor or columns % factor:
+        padded = np.zeros((*image.shape[:-2], -(-rows // factor) * factor, -(-columns // factor) * factor), dtype)
+        padded[..., :rows, :columns] = image
+        image = padded
+    by_rows = image[..., ::factor, :].copy()
     for offset in range(1, factor):
-        by_rows += padded[offset::factor]
-    total = by_rows[:, ::factor].copy()
+        by_rows += image[..., offset::factor, :]
+    total = by_rows[..., ::factor].copy()
     for offset in range(1, factor):
-        total += by_rows[:, offset::factor]
-    return total / (factor * factor)
+        total += by_rows[..., offset::factor]
+    return total / dtype.type(factor * factor)
 
 
 def ellipse_axes(labels):

@@ -394,9 +394,8 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
     elif factor > 1:
         coarse_device = replace(device, camera=device.camera.binned(factor))
         rows, columns = coarse_device.camera.size_px
-        crop = (slice(0, rows * factor), slice(0, columns * factor))
-        binned = np.stack([block_mean(image[crop], factor) for image in images]).astype(np.float32)
-        coarse_mask = block_mean(mask[crop].astype(float), factor) > 0.999
+        binned = block_mean(images, factor, "trim").astype(np.float32, copy=False)
+        coarse_mask = block_mean(mask, factor, "trim") > 0.999
         coarse_settings = {**settings, "tolerance_um": max(tolerance_um, COARSE_TOLERANCE_UM)}
         coarse_depth, _, _, _, _, coarse_valid, coarse_changes, coarse_scales = _alternate(
             binned, coarse_device, coarse_mask, np.full((rows, columns), device.working_distance_mm), scale, **coarse_settings)

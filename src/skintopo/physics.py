@@ -82,7 +82,7 @@ import numpy as np
 import scipy.fft
 
 from skintopo.errors import SkinTopoError
-from skintopo.filters import bilinear_resize, polynomial_form
+from skintopo.filters import bilinear_resize, block_mean, polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, fill_from_nearest, height_normals, integrate_normals
 from skintopo.heightmap import HeightMap, pixel_spacing
 from skintopo.lights import check_light_directions
@@ -313,22 +313,6 @@ def _grid_factor(shape, max_pixels):
     return int(np.ceil(np.sqrt(shape[0] * shape[1] / max_pixels)))
 
 
-def _block_means(stack, factor):
-    """Means of ``factor`` x ``factor`` blocks of each image of ``stack`` (m, rows, columns);
-    rows and columns beyond the last whole block are left out.
-
-    Summed over the factor^2 strided sub-grids (a loop over offsets in the block, not over
-    pixels): 5-8x faster than ``reshape(...).mean(axis=(2, 4))`` at 1000 x 1000, whose
-    reduction runs along non-contiguous axes (measured); equal to it up to rounding."""
-    if factor == 1:
-        return stack
-    rows, columns = (stack.shape[1] // factor) * factor, (stack.shape[2] // factor) * factor
-    total = stack[:, 0:rows:factor, 0:columns:factor].copy()
-    for offset in range(1, factor * factor):
-        total += stack[:, offset // factor:rows:factor, offset % factor:columns:factor]
-    return total * total.dtype.type(1 / (factor * factor))
-
-
 class _Interreflection:
     """K of the current height, on a grid of at most MAX_INTERREFLECTION_PIXELS (block means;
     interreflection varies over the wrinkle's width, far more slowly than the microrelief)."""
@@ -336,7 +320,7 @@ class _Interreflection:
     def __init__(self, height: HeightMap, radius_um):
         self.factor = self.grid_factor(height.shape)
         self.shape = height.shape
-        z = _block_means(fill_from_nearest(height.mask, height.z)[0][None], self.factor)[0]
+        z = block_mean(fill_from_nearest(height.mask, height.z)[0], self.factor, "trim")
         spacing = tuple(s * self.factor for s in height.spacing)
         self.operator = interreflection_operator(z, height_normals(z, spacing), spacing[1], radius_um=radius_um)
         self.coarse = z.shape
@@ -348,7 +332,7 @@ class _Interreflection:
 
     def gather(self, stack):
         """K B for each image of ``stack`` (m, rows, columns), at full resolution."""
-        coarse = _block_means(stack, self.factor)
+        coarse = block_mean(stack, self.factor, "trim")
         gathered = (self.operator @ coarse.reshape(coarse.shape[0], -1).T).T.reshape(coarse.shape)
         if self.factor == 1:
             return gathered
@@ -584,8 +568,8 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     if factor > 1:
         coarse = _Filter(tuple(n // factor for n in fourier.shape), tuple(s * factor for s in spacing), -(-fourier.pad // factor))
         transfer = {band: bands.kernels[band].transfer(coarse.frequency) for band in REQUIRED_BANDS}
-        search = _LobeFit(coarse, [coarse.forward(_block_means(direct, factor)) for direct in bands.images],
-                          _band_gains(bands.albedo_level, transfer).astype(np.float32), lambda roughness: _block_means(lobes(roughness), factor))
+        search = _LobeFit(coarse, [coarse.forward(block_mean(direct, factor, "trim")) for direct in bands.images],
+                          _band_gains(bands.albedo_level, transfer).astype(np.float32), lambda roughness: block_mean(lobes(roughness), factor, "trim"))
     last = len(ROUGHNESS_GRID) - 1
 
     def with_neighbours(k):

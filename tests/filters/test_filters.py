@@ -391,6 +391,16 @@ def test_block_mean_against_a_padded_reshape():
         np.testing.assert_allclose(block_mean(image, factor), expected, rtol=1e-14, atol=1e-15)
 
 
+@pytest.mark.parametrize("factor", [1, 2, 3, 4])
+def test_block_mean_of_a_float32_stack_trimmed_to_whole_blocks(factor):
+    stack = np.random.default_rng(factor).random((3, 37, 50)).astype(np.float32)
+    rows, columns = 37 // factor * factor, 50 // factor * factor
+    expected = stack[:, :rows, :columns].reshape(3, rows // factor, factor, columns // factor, factor).mean(axis=(2, 4))
+    found = block_mean(stack, factor, "trim")
+    assert found.shape == expected.shape and found.dtype == np.float32
+    np.testing.assert_allclose(found, expected, rtol=1e-6)
+
+
 @pytest.mark.parametrize("factor", [0.5, 1.0, 3.0])
 def test_profile_filter_transmission_ends_and_gaps(factor):
     """ISO 16610-21 in one dimension: a sinusoid is transmitted by exp(-pi (alpha lambda_c /

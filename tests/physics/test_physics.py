@@ -248,16 +248,6 @@ def test_physics_removes_interreflection_from_deep_wrinkles_of_a_second_renderer
     assert error < 2 * direct_error, (error, direct_error)
 
 
-@pytest.mark.parametrize("factor", [1, 2, 3, 4])
-def test_block_means_equal_the_reshaped_mean(factor):
-    stack = np.random.default_rng(factor).random((3, 37, 50)).astype(np.float32)
-    rows, columns = 37 // factor * factor, 50 // factor * factor
-    expected = stack[:, :rows, :columns].reshape(3, rows // factor, factor, columns // factor, factor).mean(axis=(2, 4))
-    found = physics._block_means(stack, factor)
-    assert found.shape == expected.shape and found.dtype == np.float32
-    np.testing.assert_allclose(found, expected, rtol=1e-6)
-
-
 def test_a_large_field_searches_the_highlight_roughness_on_block_means(monkeypatch):
     """Above MAX_SPECULAR_FIT_PIXELS the roughness is searched on 2 x 2 block means, then
     decided between the block means' choice and its neighbours, and the scale fitted, at full
