@@ -59,7 +59,7 @@ PAPER_TABLE1 = {  # RMS height error (um), paper's Table 1: red, green, blue, wh
 PAPER_MEAN_BLUE_OVER_RED = float(np.mean([row[2] / row[0] for row in PAPER_TABLE1.values()]))
 PUBLISHED = {"scattering_scale": (0.33, 1.0), "specular_scale": (1.6, 2.7), "specular_roughness": (0.30, 0.45)}
 GRID = {"scattering_scale": (0.1, 0.15, 0.2, 0.25, 0.33, 0.5, 1.0), "specular_scale": (1.0, 2.0, 2.7, 4.0, 5.0, 6.0, 8.0),
-        "specular_roughness": (0.30, 0.35)}
+        "specular_roughness": (0.30, 0.35, 0.40, 0.45)}
 
 
 def variant(scattering_scale, specular_scale, specular_roughness):
