@@ -394,7 +394,7 @@ def near_field_photometric_stereo(images, device: Device, band, *, mask=None, sh
     elif factor > 1:
         coarse_device = replace(device, camera=device.camera.binned(factor))
         rows, columns = coarse_device.camera.size_px
-        binned = block_mean(images, factor, "trim").astype(np.float32, copy=False)
+        binned = block_mean(images, factor, "trim")  # float32, as the images
         coarse_mask = block_mean(mask, factor, "trim") > 0.999
         coarse_settings = {**settings, "tolerance_um": max(tolerance_um, COARSE_TOLERANCE_UM)}
         coarse_depth, _, _, _, _, coarse_valid, coarse_changes, coarse_scales = _alternate(
