@@ -19,8 +19,9 @@ distant-light one (normals + integration per band).
 Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|skin] [--highlights cross-band]``;
 ``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json);
 ``--per-effect`` scores ideal and near-field with each of the skin's effects alone (and the
-highlights with the cross-band separation, and removed exactly), to find which one makes the
-near-field gap (nearfield-SIZE-per-effect.json).
+highlights with the cross-band separation, the same with the profile's true specular colour
+given, and removed exactly), to find which one makes the near-field gap
+(nearfield-SIZE-per-effect[-OPTICS].json).
 ``--optics NAME`` renders with that skin-optics profile (default: the simulator's, default-v1).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band][-OPTICS].json.
 """
@@ -41,7 +42,9 @@ from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.nearfield import near_field_photometric_stereo
 from skintopo.normals import photometric_stereo, separate_specular
+from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.synth import PROFILES, Effects, RenderSettings, optics_profile, preset_spec, simulate_acquisition
+from skintopo.synth.render import fresnel_dielectric
 from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
 
 RADIUS_MM = 80.0
@@ -87,15 +90,23 @@ def split_after_form(height: HeightMap, truth: HeightMap, wavelength_um=2600.0):
     return float(np.sqrt(np.mean(low[valid] ** 2))), float(np.sqrt(np.mean((residual - low)[valid] ** 2)))
 
 
-def red_without_specular(images, exposure_gain):
+def red_without_specular(images, exposure_gain, specular_colour=None):
     """The red images minus the specular part that the cross-band separation finds in
-    ``images`` (band -> stack of images, in each band's exposure units)."""
-    separation = separate_specular(*(images[b] / exposure_gain[b] for b in RGB))
-    return images["red"] - separation.specular * exposure_gain["red"]
+    ``images`` (band -> stack of images, in each band's exposure units), the surface
+    reflection taken as white or of ``specular_colour``."""
+    separation = separate_specular(*(images[b] / exposure_gain[b] for b in RGB), specular_colour=specular_colour)
+    return images["red"] - separation.band_specular("red") * exposure_gain["red"]
 
 
-def per_effect(size):
+def fresnel_colour(optics):
+    """The profile's surface reflection colour: the Fresnel reflectance at normal incidence of
+    its refractive index in red, green and blue (what the renders use; an oracle)."""
+    return [float(fresnel_dielectric(1.0, optics.fresnel_index[b])) for b in RGB]
+
+
+def per_effect(size, optics_name=None):
     """Ideal and near-field red heights with one effect of the skin profile at a time."""
+    optics = optics_profile(optics_name or DEFAULT_SKIN_OPTICS)
     device, surface = device_scene(size)
     crop = camera_grid_surface(surface, device)
     truth, lights = crop.height, device.central_directions()
@@ -104,11 +115,13 @@ def per_effect(size):
              "albedo variation": Effects(shadows=False, interreflection=False, specular=False, translucency=False),
              "highlights": Effects(shadows=False, interreflection=False, translucency=False, albedo_variation=False)}
     cases = [(name, effects, "none") for name, effects in alone.items()]
-    cases += [("highlights", alone["highlights"], "cross-band"), ("skin (all but interreflection)", EFFECTS["skin"], "cross-band"),
+    cases += [("highlights", alone["highlights"], "cross-band"), ("highlights", alone["highlights"], "cross-band, colour given"),
+              ("skin (all but interreflection)", EFFECTS["skin"], "cross-band"),
+              ("skin (all but interreflection)", EFFECTS["skin"], "cross-band, colour given"),
               ("skin (all but interreflection)", EFFECTS["skin"], "removed exactly")]
     rows = []
     for name, effects, highlights in cases:
-        settings = RenderSettings(effects=effects, noise=1.0)
+        settings = RenderSettings(effects=effects, noise=1.0, optics=optics)
         bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
         ideal_bands, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
         red, ideal_red = bands["red"], ideal_bands["red"][0]
@@ -118,9 +131,10 @@ def per_effect(size):
             red = red["red"] * info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
             ideal_red, diffuse_info = simulate_acquisition(crop, replace(diffuse, lights=lights), seed=1)
             ideal_red = ideal_red["red"][0] * ideal_info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
-        if highlights == "cross-band":
-            red = red_without_specular(bands, info["exposure_gain"])
-            ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"])
+        if highlights.startswith("cross-band"):
+            colour = fresnel_colour(optics) if highlights.endswith("colour given") else None
+            red = red_without_specular(bands, info["exposure_gain"], colour)
+            ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"], colour)
         ideal = distant_reconstruction(ideal_red, lights, truth.spacing)
         near = near_field_photometric_stereo(red, device, "red")
         row = {"effect": name, "highlights": highlights, "photometric_scale_of_working_distance": near.scales[-1]}
@@ -129,7 +143,9 @@ def per_effect(size):
             row[key]["after_form_longer_than_2.6mm_um"], row[key]["after_form_shorter_um"] = split_after_form(height, truth)
         rows.append(row)
         print(name, highlights, round(row["ideal"]["rms_after_form_um"], 2), round(row["near_field"]["rms_after_form_um"], 2), flush=True)
-    write_result(f"nearfield-{size}-per-effect", {"device": device.describe(), "size_px": size, "band": "red", "rows": rows})
+    name = f"nearfield-{size}-per-effect" + ("" if optics_name is None else f"-{optics_name}")
+    write_result(name, {"device": device.describe(), "optics": optics.name, "specular_colour": fresnel_colour(optics), "size_px": size,
+                        "band": "red", "rows": rows})
 
 
 def distant_reconstruction(images, lights, spacing):
@@ -179,7 +195,7 @@ def main():
     if args.mitsuba:
         return mitsuba_check(args.size)
     if args.per_effect:
-        return per_effect(args.size)
+        return per_effect(args.size, args.optics)
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
     if args.optics is not None:

@@ -28,8 +28,8 @@ def errors(images, separation, band, lights, truth, mask):
         "plain": photometric_stereo(images[band], lights, shadow_fraction=0.0, specular_lobe=False),
         "default": photometric_stereo(images[band], lights),
         "robust": photometric_stereo(images[band], lights, solver="robust"),
-        "cross-band default": photometric_stereo(images[band], lights, highlights=separation.highlights(images[band])),
-        "cross-band robust": photometric_stereo(images[band], lights, solver="robust", highlights=separation.highlights(images[band])),
+        "cross-band default": photometric_stereo(images[band], lights, highlights=separation.highlights(images[band], band=band)),
+        "cross-band robust": photometric_stereo(images[band], lights, solver="robust", highlights=separation.highlights(images[band], band=band)),
     }
     return {name: round(float(np.nanmean(angular_error_degrees(r.normals, truth)[mask])), 3) for name, r in runs.items()}
 

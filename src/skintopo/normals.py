@@ -41,7 +41,7 @@ the lobe.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -660,34 +660,46 @@ HIGHLIGHT_RATIO = 0.5  # an observation whose estimated specular part exceeds th
 @dataclass(frozen=True, eq=False)
 class SpecularSeparation:
     """Output of :func:`separate_specular`: each band's diffuse images and the specular part
-    (the same in every band), all (m, rows, columns) in the images' units."""
+    s_i, all (m, rows, columns) in the images' units; ``colour``: band -> the specular
+    colour's factor (mean 1 over red, green and blue; all 1 for a neutral surface), so that
+    band c's specular part is s_i colour[c] (:meth:`band_specular`)."""
 
     diffuse: dict
     specular: np.ndarray
+    colour: dict = field(default_factory=lambda: {"red": 1.0, "green": 1.0, "blue": 1.0, "white": 1.0})
 
-    def highlights(self, images, ratio=HIGHLIGHT_RATIO):
-        """Observations of ``images`` (any band taken under the same lights, intensity-
+    def band_specular(self, band="white"):
+        """The specular part in ``band``'s images (white: the mean of the three bands')."""
+        factor = self.colour[band]
+        return self.specular if factor == 1.0 else self.specular * np.float32(factor)
+
+    def highlights(self, images, ratio=HIGHLIGHT_RATIO, band="white"):
+        """Observations of ``images`` (``band``'s, taken under the same lights, intensity-
         corrected: red, green, blue or white) whose specular part exceeds ``ratio`` times
         their diffuse part, images - specular."""
+        specular = self.band_specular(band)
         with np.errstate(invalid="ignore"):
-            return self.specular > ratio * np.maximum(np.asarray(images, dtype=np.float32) - self.specular, 0)
+            return specular > ratio * np.maximum(np.asarray(images, dtype=np.float32) - specular, 0)
 
 
-def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):
+def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1, specular_colour=None):
     """Split each observation into a diffuse part with the skin's colour and a specular part
     with the light's colour, from the three bands taken under the same lights.
 
     Dichromatic reflection (Shafer 1985), with the bands radiometrically calibrated against
-    each other (each light's relative intensity per band divided out, so the light is white,
-    w = (1, 1, 1)): observation i of a pixel is v_i = d_i a + s_i w, with a the pixel's
-    diffuse colour (rho_red, rho_green, rho_blue), d_i its diffuse shading and s_i >= 0 the
-    surface (specular) reflection, equal in all bands. Write each v_i as its component along
-    w_hat = w / sqrt(3), v_par = d_i a . w_hat + sqrt(3) s_i, and the rest, |v_perp| = d_i
-    |a_perp| (specular-free, as in :func:`specular_free_images`). The least specular
+    each other (each light's relative intensity per band divided out, so the light is white):
+    observation i of a pixel is v_i = d_i a + s_i w, with a the pixel's diffuse colour
+    (rho_red, rho_green, rho_blue), d_i its diffuse shading, s_i >= 0 the surface (specular)
+    reflection and w its colour: w = (1, 1, 1) under the neutral-interface assumption (Lee,
+    Breneman & Schulte 1990: the surface reflects every band alike), the default; a surface
+    whose refractive index changes with the wavelength reflects the bands in proportion to
+    their Fresnel reflectances, ``specular_colour``. Write each v_i as its component along
+    w_hat = w / |w|, v_par = d_i a . w_hat + |w| s_i, and the rest, |v_perp| = d_i |a_perp|
+    (specular-free, as in :func:`specular_free_images` for white). The least specular
     observation has the smallest ratio v_par / |v_perp|; it fixes k = a . w_hat / |a_perp|
     (its s_i taken as 0), and then
 
-        s_i = max(0, v_par,i - k |v_perp,i|) / sqrt(3),   diffuse_c,i = v_c,i - s_i.
+        s_i w_c = max(0, v_par,i - k |v_perp,i|) w_hat_c,   diffuse_c,i = v_c,i - s_i w_c.
 
     k is a colour property that varies slowly over skin: the per-pixel minimum (over the
     observations whose |v_perp| is at least ``lit_fraction`` of the pixel's largest) is median
@@ -702,17 +714,27 @@ def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):
     red, green, blue : array_like, shape (m, rows, columns)
         Intensity-corrected images, observation i under the same light in every band; NaN
         marks a saturated observation (kept NaN).
+    specular_colour : sequence of 3 positive floats, optional
+        The surface reflection's relative strength in red, green and blue (any scale);
+        default (1, 1, 1).
 
     Returns
     -------
     SpecularSeparation
+        ``specular`` is s_i with w scaled to a mean of 1 (for white: the specular part of
+        every band), ``colour`` that w, ``diffuse`` each band's images minus its own.
     """
     import scipy.ndimage
 
     v = np.stack([np.asarray(c, dtype=np.float32) for c in (red, green, blue)], axis=-1)
     if v.ndim != 4:
         raise ValueError(f"expected three stacks of images (m, rows, columns), got shape {v.shape[:-1]}")
-    parallel = v.sum(axis=-1) / np.float32(np.sqrt(3))
+    colour = np.ones(3) if specular_colour is None else np.asarray(specular_colour, dtype=float)
+    if colour.shape != (3,) or not (np.all(np.isfinite(colour)) and np.all(colour > 0)):
+        raise SkinTopoError(f"specular_colour must be three positive numbers (red, green, blue), got {specular_colour!r}")
+    colour = colour / colour.mean()
+    white = (colour / np.linalg.norm(colour)).astype(np.float32)
+    parallel = v @ white
     perpendicular = np.sqrt(np.maximum((v * v).sum(axis=-1) - parallel * parallel, 0))
     with np.errstate(invalid="ignore", divide="ignore"):
         lit = perpendicular > lit_fraction * np.fmax.reduce(perpendicular, axis=0)
@@ -725,8 +747,9 @@ def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1):
         k = np.where(finite, k, np.median(k[finite]))
         if smoothing_px > 1:
             k = scipy.ndimage.median_filter(k, size=smoothing_px, mode="nearest")
-        with np.errstate(invalid="ignore"):
-            specular = np.maximum(parallel - k * perpendicular, 0) / np.float32(np.sqrt(3))
+        with np.errstate(invalid="ignore"):  # s_i with w scaled to mean 1: |w| = |colour|
+            specular = np.maximum(parallel - k * perpendicular, 0) / np.float32(np.linalg.norm(colour))
         specular = np.where(np.isfinite(specular), specular, np.float32(0)).astype(np.float32)
-    diffuse = {band: v[..., i] - specular for i, band in enumerate(("red", "green", "blue"))}
-    return SpecularSeparation(diffuse, specular)
+    factors = dict(zip(("red", "green", "blue"), colour.tolist())) | {"white": 1.0}
+    diffuse = {band: v[..., i] - specular * np.float32(factors[band]) for i, band in enumerate(("red", "green", "blue"))}
+    return SpecularSeparation(diffuse, specular, factors)

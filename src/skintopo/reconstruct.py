@@ -72,7 +72,7 @@ def band_images(acquisition: Acquisition, band, separation=None):
     red_lights = acquisition.bands["red"].lights if "red" in acquisition.bands else None
     if separation is None or lights.shape != red_lights.shape or not np.allclose(lights, red_lights, atol=1e-6):
         return images, lights, None
-    return images, lights, separation.highlights(images)
+    return images, lights, separation.highlights(images, band=band)
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
@@ -126,7 +126,7 @@ def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fract
         separation = separation or specular_separation(acquisition)
         if separation is None:
             raise SkinTopoError(f"{acquisition.source}: cross-band highlights need red, green and blue images under the same LEDs")
-        values = values - separation.specular
+        values = values - separation.band_specular(band)
     device = acquisition.device
     band_device = replace(device, leds=tuple(device.led(name) for name in images.leds))
     started = time.perf_counter()

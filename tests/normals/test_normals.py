@@ -162,6 +162,30 @@ def test_separate_specular_recovers_a_dichromatic_surface():
     np.testing.assert_array_equal(flagged, specular > 0.5 * shading * colour[1])
 
 
+def test_separate_specular_with_a_coloured_surface_reflection():
+    """A surface reflection 4.4% weaker in red and stronger in blue than in green (Fresnel
+    reflectances of indices 1.37 / 1.38 / 1.39, as the simulator's default-v1 skin): given its
+    colour, the separation recovers each band's diffuse images; assumed white, it leaves a
+    part of every highlight in them."""
+    rng = np.random.default_rng(4)
+    z, p, q = plane_and_bump(shape=(24, 32))
+    shading = render_lambertian(normals_from_slopes(0.3 * p, 0.3 * q), 1.0, four_lights())
+    colour = np.array([0.6, 0.41, 0.33])[:, None, None] * (1 + 0.05 * np.sin(np.arange(32) / 5))[None, None, :]
+    specular = rng.uniform(0.0, 0.8, shading.shape) * (rng.random(shading.shape) < 0.5)
+    specular[rng.integers(0, 4, size=shading.shape[1:]), np.arange(24)[:, None], np.arange(32)[None, :]] = 0.0
+    reflectance = np.array([0.9559, 1.0, 1.0443])
+    bands = [shading * colour[c] + specular * reflectance[c] for c in range(3)]
+    given = separate_specular(*bands, smoothing_px=1, specular_colour=reflectance)
+    white = separate_specular(*bands, smoothing_px=1)
+    for c, band in enumerate(("red", "green", "blue")):
+        np.testing.assert_allclose(given.diffuse[band], shading * colour[c], atol=1e-5)
+        np.testing.assert_allclose(given.band_specular(band), specular * reflectance[c], atol=1e-5)
+        assert np.abs(white.diffuse[band] - shading * colour[c]).max() > 0.02  # white leaves coloured light in
+    np.testing.assert_array_equal(given.highlights(bands[0], band="red"), specular * reflectance[0] > 0.5 * shading * colour[0])
+    with pytest.raises(SkinTopoError, match="specular_colour"):
+        separate_specular(*bands, specular_colour=(1.0, 0.0, 1.0))
+
+
 @pytest.mark.slow
 def test_cross_band_highlights_on_a_shiny_sphere_and_skin_patch():
     """Simulated rough dielectric coat, surface reflection 10x skin's: the robust solver with
