@@ -36,16 +36,16 @@ import numpy as np
 import scipy.ndimage
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
+from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.device import paper_device
 from skintopo.filters import polynomial_form, sphere_fit
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.nearfield import near_field_photometric_stereo
 from skintopo.normals import photometric_stereo, separate_specular
-from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.synth import PROFILES, Effects, RenderSettings, optics_profile, preset_spec, simulate_acquisition
-from skintopo.synth.render import fresnel_dielectric
 from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
+from skintopo.synth.render import fresnel_dielectric
 
 RADIUS_MM = 80.0
 RGB = ("red", "green", "blue")
