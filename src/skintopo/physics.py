@@ -56,6 +56,17 @@ Estimation, alternating until the height stops changing (``tolerance``):
    made with, is recorded per iteration. The last iteration's height is returned, unless the
    height changed by more than half its RMS in one pass (diverging): then the one before.
 
+The first pass has no height of its own to fit the lobe to. It starts from a lobe fitted
+(as in step 4) to the normals of the plain bands' mean height when that lobe carries more
+than ``SEED_SPECULAR_FRACTION`` of the images' light, and from none otherwise (always none
+without the scattering model, whose absence the lobe fit takes for a highlight: the
+ablation's heights went from 6-15 um to unregistrable). A highlight that
+strong bends the first pass so far that the next one diverges: in the simulator's
+``paper-calibrated`` optics (surface reflection 8x skin's; the seed lobe 20-25% of the light)
+with calibrated kernels, mean RMS error over 12 fields 154 -> 25 um. Weaker ones are
+corrected by the later passes, and seeding them cost accuracy: ``default-v1`` (seed lobe
+0.1-11% of the light) with calibrated kernels, 3.35 -> 4.15 um (bench_physics, 2026-12-05).
+
 A sanity check, not a validation: the result records its agreement with the mean of the
 plain band heights (relief ratio and correlation, both levelled) and is flagged not
 plausible outside ``PLAUSIBLE_RELIEF`` or below ``PLAUSIBLE_CORRELATION``.
@@ -94,6 +105,7 @@ DEFAULT_ITERATIONS = 4
 DEFAULT_TOLERANCE = 0.02  # stop when the RMS height change is below 2% of the height's RMS
 DIVERGENCE = 0.5  # a height that changes by more than half its RMS in one iteration is diverging
 MAX_DECONVOLUTION_GAIN = 4.0  # at most this amplification of any spatial frequency of the shading
+SEED_SPECULAR_FRACTION = 0.15  # the first pass starts from a lobe that carries more than this share of the light (module notes)
 PLAUSIBLE_RELIEF = (1 / 3, 3.0)  # physics relief / the plain bands' mean relief, outside: not plausible
 PLAUSIBLE_CORRELATION = 0.5  # least correlation of the physics height with the plain bands' mean height
 DEFAULT_RADIUS_UM = 700.0  # interreflection reach: the widest wrinkles of the field notes' range
@@ -138,7 +150,7 @@ class PhysicsResult:
     """Output of :func:`physics_height`.
 
     ``height`` is the last iteration's (or the one before, when the last one diverged); ``kernels``: band -> :class:`ScatteringKernel` (estimated from the capture) or the kernels given;
-    ``specular``: fitted lobe (``roughness`` m, ``scale`` k); ``changes``: RMS height change
+    ``specular``: fitted lobe (``roughness`` m, ``scale`` k; ``first_pass``: the seed lobe, module notes); ``changes``: RMS height change
     per iteration relative to the height's RMS; ``residuals``: RMS model residual per
     iteration (fraction of full scale); ``converged``: the last change is below the tolerance;
     ``diverged``: the last change exceeded DIVERGENCE and the iterations stopped there.
@@ -429,7 +441,12 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     # the transform is linear, F(J - s) = F(J) - F(s)
     direct_images = [images[band] for band in REQUIRED_BANDS]
     direct_spectra = [fourier.forward(direct) for direct in direct_images]
-    specular = {"roughness": None, "scale": 0.0}
+    specular, seed = {"roughness": None, "scale": 0.0}, {}
+    if highlights and scattering:  # without the scattering model the lobe fit takes the bands' blur difference for a highlight
+        seed, seed_lobe, seed_images = _seed_lobe(plain, _Bands(direct_images, direct_spectra, gain, kernels, albedo_level), fourier,
+                                                  spacing, lights, images)
+        if seed["seeded"]:
+            specular, specular_images, specular_spectrum = seed_lobe, seed_images, fourier.forward(seed_images)
     changes, residuals = [], []
     previous = best = shadowed = None
     for k, _ in enumerate(progress([f"iteration {n}" for n in range(1, iterations + 1)]), start=1):  # ends early once converged
@@ -469,6 +486,8 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
                                                       spacing, normals, lights, visible)
             specular_spectrum = fourier.forward(specular_images)
     height, albedo_pattern, specular = best
+    if seed:
+        specular = specular | {"first_pass": seed}
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
@@ -525,6 +544,47 @@ def _band_gains(albedo_level, transfer):
     return np.stack([albedo_level[band] * transfer[band] for band in REQUIRED_BANDS])
 
 
+def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
+    """The first pass's lobe (module notes), fitted to the normals of the plain bands' mean
+    height. Returns (record: ``seeded`` when it carries more than ``SEED_SPECULAR_FRACTION``
+    of the light of the red, green and blue images, that ``fraction`` and the lobe's
+    parameters; the lobe's parameters; its specular images)."""
+    common = np.logical_and.reduce([p.mask for p in plain])
+    mean = np.mean([np.where(common, p.z - np.mean(p.z[common]), 0.0) for p in plain], axis=0)
+    z = fill_from_nearest(common, np.where(common, mean, np.nan))[0]
+    brightness = np.mean([np.mean(images[band]) for band in REQUIRED_BANDS])
+
+    def lobe(z, bands, fourier, spacing):
+        visible = ~np.stack([cast_shadow(z.astype(np.float32), spacing[1], light) for light in lights])
+        return _fit_specular(bands, fourier, spacing, height_normals(z, spacing), lights, visible)
+
+    # whether to seed is decided on block means (the interreflection grid's): the full-resolution
+    # fit costs as much as a pass's (measured: physics at 1000 x 1000 4.6 -> 5.3 s), and is
+    # needed only when the lobe is kept
+    factor = _Interreflection.grid_factor(z.shape)
+    if factor > 1:
+        coarse, coarse_spacing, coarse_bands = _coarse_bands(bands, fourier, spacing, factor)
+        parameters, specular_images = lobe(block_mean(z, factor, "trim"), coarse_bands, coarse, coarse_spacing)
+    else:
+        parameters, specular_images = lobe(z, bands, fourier, spacing)
+    fraction = float(np.mean(specular_images) / brightness)
+    seeded = fraction > SEED_SPECULAR_FRACTION
+    if seeded and factor > 1:
+        parameters, specular_images = lobe(z, bands, fourier, spacing)
+    return {"seeded": seeded, "fraction": round(fraction, 4)} | parameters, parameters, specular_images
+
+
+def _coarse_bands(bands: _Bands, fourier, spacing, factor):
+    """(filter, spacing, :class:`_Bands`) of the block means of ``factor`` x ``factor``
+    pixels: the direct images averaged, their spectra and the gains on the coarser grid."""
+    coarse_spacing = tuple(d * factor for d in spacing)
+    coarse = _Filter(tuple(n // factor for n in fourier.shape), coarse_spacing, -(-fourier.pad // factor))
+    transfer = {band: bands.kernels[band].transfer(coarse.frequency) for band in REQUIRED_BANDS}
+    direct = [block_mean(images, factor, "trim") for images in bands.images]
+    gain = _band_gains(bands.albedo_level, transfer).astype(np.float32)
+    return coarse, coarse_spacing, _Bands(direct, [coarse.forward(d) for d in direct], gain, bands.kernels, bands.albedo_level)
+
+
 def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     """Scale k and roughness m of the lobe, from the bands' disagreement alone.
 
@@ -566,10 +626,8 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     factor = _grid_factor(fourier.shape, MAX_SPECULAR_FIT_PIXELS)
     search = fit
     if factor > 1:
-        coarse = _Filter(tuple(n // factor for n in fourier.shape), tuple(s * factor for s in spacing), -(-fourier.pad // factor))
-        transfer = {band: bands.kernels[band].transfer(coarse.frequency) for band in REQUIRED_BANDS}
-        search = _LobeFit(coarse, [coarse.forward(block_mean(direct, factor, "trim")) for direct in bands.images],
-                          _band_gains(bands.albedo_level, transfer).astype(np.float32), lambda roughness: block_mean(lobes(roughness), factor, "trim"))
+        coarse, _, coarse_bands = _coarse_bands(bands, fourier, spacing, factor)
+        search = _LobeFit(coarse, coarse_bands.spectra, coarse_bands.gain, lambda roughness: block_mean(lobes(roughness), factor, "trim"))
     last = len(ROUGHNESS_GRID) - 1
 
     def with_neighbours(k):
