@@ -733,8 +733,8 @@ def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1, spe
     if colour.shape != (3,) or not (np.all(np.isfinite(colour)) and np.all(colour > 0)):
         raise SkinTopoError(f"specular_colour must be three positive numbers (red, green, blue), got {specular_colour!r}")
     colour = colour / colour.mean()
-    white = (colour / np.linalg.norm(colour)).astype(np.float32)
-    parallel = v @ white
+    along = (colour / np.linalg.norm(colour)).astype(np.float32)  # w_hat
+    parallel = v @ along
     perpendicular = np.sqrt(np.maximum((v * v).sum(axis=-1) - parallel * parallel, 0))
     with np.errstate(invalid="ignore", divide="ignore"):
         lit = perpendicular > lit_fraction * np.fmax.reduce(perpendicular, axis=0)

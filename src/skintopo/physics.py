@@ -464,9 +464,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
                 break  # the model cannot explain these images (e.g. an effect left out): keep the last good one
         previous = z
         best = (height, albedo_pattern, specular)
-        normals = height_normals(z, spacing)
-        z32 = z.astype(np.float32)  # shadows in single precision (6e-5 um steps at 1 mm of relief): half the memory traffic
-        visible = ~np.stack([cast_shadow(z32, spacing[1], light) for light in lights])
+        normals, visible = _normals_and_visibility(z, spacing, lights)
         shadowed = ~visible if shadowed is None else shadowed | ~visible
         # the residual of the model this pass's height was made with (its K and s), with the height's own shading
         diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
@@ -544,6 +542,13 @@ def _band_gains(albedo_level, transfer):
     return np.stack([albedo_level[band] * transfer[band] for band in REQUIRED_BANDS])
 
 
+def _normals_and_visibility(z, spacing, lights):
+    """The normals of a (hole-free) height map and, per light, where it is not in a cast
+    shadow (m, rows, columns)."""
+    z32 = z.astype(np.float32)  # shadows in single precision (6e-5 um steps at 1 mm of relief): half the memory traffic
+    return height_normals(z, spacing), ~np.stack([cast_shadow(z32, spacing[1], light) for light in lights])
+
+
 def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
     """The first pass's lobe (module notes), fitted to the normals of the plain bands' mean
     height. Returns (record: ``seeded`` when it carries more than ``SEED_SPECULAR_FRACTION``
@@ -555,8 +560,8 @@ def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
     brightness = np.mean([np.mean(images[band]) for band in REQUIRED_BANDS])
 
     def lobe(z, bands, fourier, spacing):
-        visible = ~np.stack([cast_shadow(z.astype(np.float32), spacing[1], light) for light in lights])
-        return _fit_specular(bands, fourier, spacing, height_normals(z, spacing), lights, visible)
+        normals, visible = _normals_and_visibility(z, spacing, lights)
+        return _fit_specular(bands, fourier, spacing, normals, lights, visible)
 
     # whether to seed is decided on block means (the interreflection grid's): the full-resolution
     # fit costs as much as a pass's (measured: physics at 1000 x 1000 4.6 -> 5.3 s), and is
