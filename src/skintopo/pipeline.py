@@ -72,7 +72,11 @@ class ReconstructionOptions:
 
     ``highlights``: ``"none"`` fits every observation the shadow and saturation rules keep;
     ``"cross-band"`` leaves out the highlights found from red, green and blue together
-    (:func:`skintopo.normals.separate_specular`).
+    (:func:`skintopo.normals.separate_specular`). ``specular_colour``: for ``"cross-band"``,
+    the surface reflection's relative strength in red, green and blue (e.g. measured as the
+    difference of a parallel- and a cross-polarised capture of the skin); None (default) is
+    white, the neutral-interface assumption. It cannot be estimated from the capture itself
+    (docs/method.md).
 
     ``pixel_um`` is used only for folders without a pixel size (DiLiGenT), where it defaults to 1.
     """
@@ -83,6 +87,17 @@ class ReconstructionOptions:
     solver: str = DEFAULT_SOLVER
     integrator: str = DEFAULT_INTEGRATOR
     highlights: str = DEFAULT_HIGHLIGHTS
+    specular_colour: tuple | None = None
+
+    def __post_init__(self):
+        if self.specular_colour is None:
+            return
+        if self.highlights != "cross-band":
+            raise SkinTopoError(f"a specular colour applies to cross-band highlights only (highlights is {self.highlights!r})")
+        colour = tuple(self.specular_colour)
+        if len(colour) != 3 or not all(isinstance(c, (int, float)) and np.isfinite(c) and c > 0 for c in colour):
+            raise SkinTopoError(f"the specular colour must be three positive numbers (red, green, blue), got {self.specular_colour!r}")
+        object.__setattr__(self, "specular_colour", tuple(float(c) for c in colour))  # a JSON list becomes a tuple
 
 
 @dataclass(frozen=True)
@@ -262,7 +277,8 @@ def reconstruct_bands(acquisition, options: ReconstructionOptions = Reconstructi
     no height, see :func:`skintopo.reconstruct.reconstruct_band`).
 
     ``progress`` wraps the iteration over bands (e.g. a tqdm bar)."""
-    separation = specular_separation(acquisition) if options.highlights == "cross-band" else None  # once for every band
+    # once for every band
+    separation = specular_separation(acquisition, options.specular_colour) if options.highlights == "cross-band" else None
     results = {}
     for band in progress(list(bands or acquisition.bands)):
         # with a device, each band starts from the first band's depth (the same skin at the same distance)

@@ -48,12 +48,13 @@ def rgb_share_lights(acquisition: Acquisition):
                for b in ("green", "blue"))
 
 
-def specular_separation(acquisition: Acquisition):
+def specular_separation(acquisition: Acquisition, specular_colour=None):
     """:func:`skintopo.normals.separate_specular` of the acquisition's red, green and blue
-    images, or None when the three bands are not all there under the same lights."""
+    images (the surface reflection of ``specular_colour``, default white), or None when the
+    three bands are not all there under the same lights."""
     if not rgb_share_lights(acquisition):
         return None
-    return separate_specular(*(acquisition.bands[b].images for b in ("red", "green", "blue")))
+    return separate_specular(*(acquisition.bands[b].images for b in ("red", "green", "blue")), specular_colour=specular_colour)
 
 
 def band_images(acquisition: Acquisition, band, separation=None):
@@ -76,11 +77,13 @@ def band_images(acquisition: Acquisition, band, separation=None):
 
 
 def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEGRATOR, shadow_fraction=DEFAULT_SHADOW_FRACTION,
-                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None, start=None, integrate=True):
+                     solver=DEFAULT_SOLVER, highlights=DEFAULT_HIGHLIGHTS, separation=None, start=None, integrate=True,
+                     specular_colour=None):
     """Photometric stereo and integration for one band of ``acquisition``.
 
     ``highlights="cross-band"`` leaves out the observations that :func:`specular_separation`
-    (computed here unless ``separation`` is given) flags as highlights, and the robust
+    (computed here unless ``separation`` is given; with the surface reflection of
+    ``specular_colour``, default white) flags as highlights, and the robust
     solver then relies on those flags instead of its few-lights rule; ``"none"`` (default)
     fits every observation the shadow and saturation rules keep. The height map keeps only pixels inside the acquisition mask
     with a valid normal. ``start``: with a device, another band's :class:`BandReconstruction`
@@ -93,9 +96,10 @@ def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEG
         raise SkinTopoError(f"unknown highlight handling {highlights!r}; choose from {list(HIGHLIGHT_MODES)}")
     if acquisition.device is not None:
         return _near_field_band(acquisition, band, integrator=integrator, shadow_fraction=shadow_fraction, solver=solver,
-                                highlights=highlights, separation=separation, start=None if start is None else start.near_field)
+                                highlights=highlights, separation=separation, start=None if start is None else start.near_field,
+                                specular_colour=specular_colour)
     if highlights == "cross-band" and separation is None and band != SPECULAR_FREE:
-        separation = specular_separation(acquisition)
+        separation = specular_separation(acquisition, specular_colour)
     images, lights, flagged = band_images(acquisition, band, separation if highlights == "cross-band" else None)
     start = time.perf_counter()
     stereo = photometric_stereo(images, lights, mask=acquisition.mask, shadow_fraction=shadow_fraction, solver=solver, highlights=flagged)
@@ -105,7 +109,8 @@ def reconstruct_band(acquisition: Acquisition, band, *, integrator=DEFAULT_INTEG
     return BandReconstruction(band, stereo, height, middle - start, end - middle)
 
 
-def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fraction, solver, highlights, separation=None, start=None):
+def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fraction, solver, highlights, separation=None, start=None,
+                     specular_colour=None):
     """A band of a device acquisition through near-field photometric stereo
     (:mod:`skintopo.nearfield`): the height on the skin-plane grid, the normals resampled to
     it. ``highlights="cross-band"`` solves the diffuse images of the dichromatic separation
@@ -123,7 +128,7 @@ def _near_field_band(acquisition: Acquisition, band, *, integrator, shadow_fract
     images = acquisition.bands[band]
     values = images.images
     if highlights == "cross-band":
-        separation = separation or specular_separation(acquisition)
+        separation = separation or specular_separation(acquisition, specular_colour)
         if separation is None:
             raise SkinTopoError(f"{acquisition.source}: cross-band highlights need red, green and blue images under the same LEDs")
         values = values - separation.band_specular(band)

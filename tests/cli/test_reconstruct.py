@@ -19,12 +19,19 @@ def run_reconstruct(folder, out, capsys, *extra):
 
 
 def assert_refused(folder, tmp_path, capsys, *fragments):
-    out = tmp_path / "out"
-    code, err = run_reconstruct(folder, out, capsys)
-    assert code == 2
-    assert "Traceback" not in err
+    err = assert_refused_with(folder, tmp_path, capsys)
     for fragment in fragments:
         assert fragment in err, err
+    return err
+
+
+def assert_refused_with(folder, tmp_path, capsys, *extra):
+    """Run ``reconstruct`` with ``extra`` options: refused (status 2, a message, no traceback),
+    nothing written. Returns the message."""
+    out = tmp_path / "out"
+    code, err = run_reconstruct(folder, out, capsys, *extra)
+    assert code == 2
+    assert "Traceback" not in err
     assert not out.exists()
     assert not list(tmp_path.glob(".out.*"))  # no staging folder left behind
     return err
@@ -174,3 +181,60 @@ def test_every_effect_off_reconstructs_exactly(tmp_path, capsys):
     print(f"effects off: mean angular error {np.nanmean(error):.4f} deg, height RMS {rms:.3f} um (deepest wrinkle {wrinkle_depth} um)")
     assert np.nanmean(error) < 0.1
     assert rms < 0.01 * wrinkle_depth
+
+
+def _coloured_highlight_acquisition(folder):
+    """The analytic surface of ``lambertian_acquisition`` with a sharp surface reflection
+    (Torrance-Sparrow, m = 0.15) 0.8 / 1.0 / 1.2 strong in red, green and blue (a surface
+    whose refractive index falls with the wavelength); returns the true specular images."""
+    from skintopo.acquisition import write_acquisition
+    from skintopo.normals import render_lambertian
+    from skintopo.synth.render import torrance_sparrow
+    from tests.helpers.analytic import four_lights, normals_from_slopes, paraboloid_with_wrinkles
+
+    z, p, q = paraboloid_with_wrinkles(shape=(48, 64), spacing=10.0)
+    normals, lights = normals_from_slopes(p, q), four_lights()
+    specular = np.stack([torrance_sparrow(normals, light, roughness=0.15) for light in lights])
+    albedo, colour = {"red": 0.6, "green": 0.41, "blue": 0.33}, {"red": 0.8, "green": 1.0, "blue": 1.2}
+    write_acquisition(folder, {b: (render_lambertian(normals, a, lights) + colour[b] * specular, lights) for b, a in albedo.items()}, 10.0)
+    return {b: colour[b] * specular for b in albedo}
+
+
+def test_a_specular_colour_is_given_to_the_cross_band_separation(tmp_path, capsys):
+    from skintopo.acquisition import load_acquisition
+    from skintopo.normals import HIGHLIGHT_RATIO
+    from skintopo.reconstruct import reconstruct_band
+
+    folder = tmp_path / "acq"
+    specular = _coloured_highlight_acquisition(folder)
+    acquisition = load_acquisition(folder)
+    for colour, out in ((None, tmp_path / "white"), ("0.8,1,1.2", tmp_path / "coloured")):
+        extra = ["--highlights", "cross-band"] + ([] if colour is None else ["--specular-colour", colour])
+        assert run_reconstruct(folder, out, capsys, *extra)[0] == 0
+    summary = json.loads((tmp_path / "coloured" / "summary.json").read_text())
+    assert summary["options"]["specular_colour"] == [0.8, 1.0, 1.2]
+    for band, specular_images in specular.items():
+        # with its colour given the separation is exact: the observations left out are the true highlights
+        images = acquisition.bands[band].images
+        true_highlights = specular_images > HIGHLIGHT_RATIO * (images - specular_images)
+        given = reconstruct_band(acquisition, band, highlights="cross-band", specular_colour=(0.8, 1.0, 1.2))
+        assert np.array_equal(~given.stereo.used & acquisition.mask, true_highlights & acquisition.mask)
+        assert np.array_equal(np.load(tmp_path / "coloured" / band / "normals.npy"), given.stereo.normals, equal_nan=True)
+        # assumed white, the non-white part is taken for specular light: more is left out
+        white = np.load(tmp_path / "white" / band / "normals.npy")
+        assert not np.array_equal(white, given.stereo.normals, equal_nan=True)
+
+
+@pytest.mark.parametrize("colour, message", [("1,2", "expected three numbers R,G,B, got '1,2'"), ("1,-1,1", "must be a positive number, got -1")])
+def test_a_malformed_specular_colour_is_refused(lambertian_acquisition, tmp_path, capsys, colour, message):
+    folder, _, _ = lambertian_acquisition
+    with pytest.raises(SystemExit):
+        run_reconstruct(folder, tmp_path / "out", capsys, "--highlights", "cross-band", "--specular-colour", colour)
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_specular_colour_without_cross_band_highlights_is_refused(lambertian_acquisition, tmp_path, capsys):
+    folder, _, _ = lambertian_acquisition
+    err = assert_refused_with(folder, tmp_path, capsys, "--specular-colour", "1,1,1")
+    assert "a specular colour applies to cross-band highlights only (highlights is 'none')" in err

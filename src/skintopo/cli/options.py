@@ -67,6 +67,14 @@ unit_fraction = number_type(float, lambda v: 0 < v <= 1, "in (0, 1]")
 size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
 positive_int = number_type(int, lambda v: v >= 1, "1 or more")
 non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
+def specular_colour(text):
+    """An argparse type: three positive numbers ``R,G,B``."""
+    parts = text.split(",")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected three numbers R,G,B, got {text!r}")
+    return tuple(positive_float(part.strip()) for part in parts)
+
+
 percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
 
 
@@ -128,6 +136,9 @@ def add_reconstruction_options(parser):
     parser.add_argument("--highlights", choices=HIGHLIGHT_MODES, default=DEFAULT_HIGHLIGHTS,
                         help="none (default): fit every observation the shadow and saturation rules keep; cross-band: leave out the "
                         "highlights found from red, green and blue together (helps opaque shiny surfaces and blue; see the docs)")
+    parser.add_argument("--specular-colour", type=specular_colour, default=None, metavar="R,G,B",
+                        help="with --highlights cross-band: the surface reflection's relative strength in red, green and blue, "
+                        "e.g. from a parallel- minus a cross-polarised capture (default white: 1,1,1)")
     parser.add_argument("--integrator", choices=[AUTO_INTEGRATOR, *sorted(INTEGRATOR_NAMES)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
 
@@ -136,7 +147,8 @@ def reconstruction_options(args):
     from skintopo.pipeline import ReconstructionOptions
 
     return ReconstructionOptions(pixel_um=args.pixel_um, saturation=args.saturation, shadow_fraction=args.shadow_fraction,
-                                 solver=args.solver, integrator=args.integrator, highlights=args.highlights)
+                                 solver=args.solver, integrator=args.integrator, highlights=args.highlights,
+                                 specular_colour=args.specular_colour)
 
 
 def measure_options(args, method=None):
