@@ -17,13 +17,17 @@ def run(args):
     from skintopo.results import run_header
 
     derived = args.band == SPECULAR_FREE
-    bands = None if args.band == "all" else (["red", "green", "blue"] if derived else [args.band])
+    wanted = None if args.band == "all" else [args.band]
+    # the specular-free band and the cross-band highlights are made from red, green and blue,
+    # whichever band is reconstructed
+    rgb = derived or args.highlights == "cross-band"
+    bands = None if wanted is None else [b for b in BANDS if b in wanted or (rgb and b in ("red", "green", "blue"))]
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.acquisition])
     started = time.perf_counter()
     acquisition = shared.load(args, bands, "reconstruct")
     seconds_load = time.perf_counter() - started
     options = shared.reconstruction_options(args)
-    results = reconstruct_bands(acquisition, options, [SPECULAR_FREE] if derived else None, shared.band_progress(args))
+    results = reconstruct_bands(acquisition, options, wanted, shared.band_progress(args))
     summary = run_header(
         "reconstruct", acquisition=acquisition_summary(acquisition), options=asdict(options),
         units={"height": "um", "normals": "unit vector, camera frame (x right, y up, z toward camera)"},
