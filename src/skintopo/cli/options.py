@@ -67,15 +67,17 @@ unit_fraction = number_type(float, lambda v: 0 < v <= 1, "in (0, 1]")
 size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
 positive_int = number_type(int, lambda v: v >= 1, "1 or more")
 non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
+
+
+percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
+
+
 def specular_colour(text):
     """An argparse type: three positive numbers ``R,G,B``."""
     parts = text.split(",")
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"expected three numbers R,G,B, got {text!r}")
     return tuple(positive_float(part.strip()) for part in parts)
-
-
-percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
 
 
 def bar(iterable=None, *, quiet, desc, unit, total=None, leave=False):
