@@ -67,8 +67,6 @@ unit_fraction = number_type(float, lambda v: 0 < v <= 1, "in (0, 1]")
 size = number_type(int, lambda v: v >= 16, "at least 16 pixels")
 positive_int = number_type(int, lambda v: v >= 1, "1 or more")
 non_negative_int = number_type(int, lambda v: v >= 0, "0 or more")
-
-
 percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage between 50 and 100")
 
 
