@@ -7,7 +7,12 @@ degrees, 32 samples per pixel, albedo 0.60 / 0.41 / 0.33) in four cases: diffuse
 subsurface scattering (an exponential kernel exp(-r / d) per band, d = 120 / 70 / 40 um,
 w = 0.5 / 0.35 / 0.25: a family the simulator does not use); a rough dielectric coat (Beckmann
 alpha 0.2); coat alpha 0.3 + scattering. RMS height error (um) of red, the best band (red,
-green, blue, white), the paper's correction and physics with each solver.
+green, blue, white), the paper's correction and physics with each solver; and physics with
+kernels from a calibration capture of each case's skin (``skintopo calibrate skin``'s
+:func:`~skintopo.calibration.diffusion_profile_from_edge`): a black mask's straight edge
+(reflectance 0.03) on a flat patch of the same material, 128 x 256 at 20 um, rendered by
+Mitsuba under all four lights at once, the case's scattering applied to the light the skin
+emits beside the mask (none enters under it).
 
 Run from bench/: ``python bench_physics_mitsuba.py``. Results: bench/results/physics-mitsuba.json.
 """
@@ -19,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
+from skintopo.calibration import diffusion_profile_from_edge
 from skintopo.correction import spectral_correction
 from skintopo.evaluation import evaluate_height
 from skintopo.height import integrate_normals
@@ -37,6 +43,27 @@ CASES = {"diffuse": (None, False), "diffuse + scattering": (None, True), "coat a
          "coat alpha 0.3 + scattering": (0.3, True)}
 
 
+EDGE_SHAPE = (128, 256)
+MASK_REFLECTANCE = 0.03  # black tape
+
+
+def edge_calibrated_kernels(lights, coat, scattering):
+    """Diffusion profiles per band measured on a rendered skin-edge capture of the case's
+    material (module notes), and the fits' records."""
+    flat = mitsuba_render.render(np.zeros(EDGE_SHAPE), 20.0, lights, ALBEDO, coat_roughness=coat, spp=32, seed=2).mean(axis=1)
+    rows, columns = np.indices(EDGE_SHAPE, dtype=float)
+    edge = 0.3 * EDGE_SHAPE[1] + np.tan(np.radians(2.0)) * (rows + 0.5)
+    uncovered = np.clip(columns + 1.0 - edge, 0.0, 1.0)  # the share of each pixel beside the mask
+    kernels, records = {}, {}
+    for c, band in enumerate(BANDS):
+        emitted = flat[c] * uncovered
+        if scattering:
+            emitted = mitsuba_render.exponential_scattering(emitted, 20.0, *SCATTERING[c])
+        mask = flat[c] * MASK_REFLECTANCE / ALBEDO[c]
+        kernels[band], records[band] = diffusion_profile_from_edge(uncovered * emitted + (1 - uncovered) * mask, 20.0, name=band)
+    return kernels, records
+
+
 def rms(height, surface):
     try:
         return round(evaluate_height(height, surface.height)["rms_height_error_um"], 3)
@@ -47,6 +74,7 @@ def rms(height, surface):
 def main():
     lights = default_lights()
     rows = []
+    calibrated = {name: edge_calibrated_kernels(lights, coat, scattering)[0] for name, (coat, scattering) in CASES.items()}
     for preset in ("forehead-moderate", "forehead-high"):
         surface = make_surface(preset_spec(preset, size_px=128), seed=4)
         for name, (coat, scattering) in CASES.items():
@@ -68,15 +96,20 @@ def main():
                 result = physics_height({b: images[b] for b in BANDS}, lights, 20.0, solver=solver)
                 row[f"physics {solver}"] = rms(result.height, surface)
                 row[f"physics {solver} plausible"] = result.plausible
+            result = physics_height({b: images[b] for b in BANDS}, lights, 20.0, kernels=calibrated[name])
+            row["physics edge-calibrated"] = rms(result.height, surface)
+            row["physics edge-calibrated plausible"] = result.plausible
             rows.append(row)
             print(row, file=sys.stderr, flush=True)
     summary = {}
-    for solver in ("least-squares", "robust"):
-        key = f"physics {solver}"
+    for key in ("physics least-squares", "physics robust", "physics edge-calibrated"):
         values = [r[key] if isinstance(r[key], float) else float("inf") for r in rows]
         summary[key] = {"below_best_band": f"{sum(v < r['best_band'] for v, r in zip(values, rows))}/{len(rows)}",
                         "mean_change_vs_red_percent": round(float(np.mean([100 * (v / r["red"] - 1) for v, r in zip(values, rows)])), 1)}
-    write_result("physics-mitsuba", {"summary": summary, "cases": rows})
+    kernels = {name: {band: {"weights": [round(w, 4) for w in kernel.weights], "sigmas_um": [round(w, 1) for w in kernel.sigmas_um],
+                             "transfer_at_8_cycles_per_mm": round(float(kernel.transfer(0.008)), 4)} for band, kernel in bands.items()}
+               for name, bands in calibrated.items()}
+    write_result("physics-mitsuba", {"summary": summary, "cases": rows, "edge_calibrated_kernels": kernels})
 
 
 if __name__ == "__main__":
