@@ -43,25 +43,11 @@ CASES = {"diffuse": (None, False), "diffuse + scattering": (None, True), "coat a
          "coat alpha 0.3 + scattering": (0.3, True)}
 
 
-EDGE_SHAPE = (128, 256)
-MASK_REFLECTANCE = 0.03  # black tape
-
-
 def edge_calibrated_kernels(lights, coat, scattering):
     """Diffusion profiles per band measured on a rendered skin-edge capture of the case's
-    material (module notes), and the fits' records."""
-    flat = mitsuba_render.render(np.zeros(EDGE_SHAPE), 20.0, lights, ALBEDO, coat_roughness=coat, spp=32, seed=2).mean(axis=1)
-    rows, columns = np.indices(EDGE_SHAPE, dtype=float)
-    edge = 0.3 * EDGE_SHAPE[1] + np.tan(np.radians(2.0)) * (rows + 0.5)
-    uncovered = np.clip(columns + 1.0 - edge, 0.0, 1.0)  # the share of each pixel beside the mask
-    kernels, records = {}, {}
-    for c, band in enumerate(BANDS):
-        emitted = flat[c] * uncovered
-        if scattering:
-            emitted = mitsuba_render.exponential_scattering(emitted, 20.0, *SCATTERING[c])
-        mask = flat[c] * MASK_REFLECTANCE / ALBEDO[c]
-        kernels[band], records[band] = diffusion_profile_from_edge(uncovered * emitted + (1 - uncovered) * mask, 20.0, name=band)
-    return kernels, records
+    material (module notes; tests/helpers/mitsuba_render.py)."""
+    images = mitsuba_render.render_skin_edge(lights, ALBEDO, coat_roughness=coat, scattering=SCATTERING if scattering else None)
+    return {band: diffusion_profile_from_edge(images[c], 20.0, name=band)[0] for c, band in enumerate(BANDS)}
 
 
 def rms(height, surface):
@@ -74,7 +60,7 @@ def rms(height, surface):
 def main():
     lights = default_lights()
     rows = []
-    calibrated = {name: edge_calibrated_kernels(lights, coat, scattering)[0] for name, (coat, scattering) in CASES.items()}
+    calibrated = {name: edge_calibrated_kernels(lights, coat, scattering) for name, (coat, scattering) in CASES.items()}
     for preset in ("forehead-moderate", "forehead-high"):
         surface = make_surface(preset_spec(preset, size_px=128), seed=4)
         for name, (coat, scattering) in CASES.items():

@@ -90,6 +90,26 @@ def exponential_scattering(image, pixel_um, weight, length_um):
     return (1 - weight) * image + weight * blurred
 
 
+def render_skin_edge(lights, albedo, *, coat_roughness=None, scattering=None, shape=(128, 256), pixel_um=20.0, spp=32, seed=2,
+                     mask_reflectance=0.03):
+    """A calibration capture for ``skintopo calibrate skin`` (red, green, blue images): a black
+    mask (``mask_reflectance``) with a straight edge tilted by 2 degrees over a flat patch of the
+    material (Mitsuba, every light at once), ``scattering`` ((weight, length um) per band, as
+    :func:`exponential_scattering`) applied to the light the skin emits beside the mask; no
+    light enters the skin under it."""
+    flat = render(np.zeros(shape), pixel_um, lights, albedo, coat_roughness=coat_roughness, spp=spp, seed=seed).mean(axis=1)
+    rows, columns = np.indices(shape, dtype=float)
+    edge = 0.3 * shape[1] + np.tan(np.radians(2.0)) * (rows + 0.5)
+    uncovered = np.clip(columns + 1.0 - edge, 0.0, 1.0)  # the share of each pixel beside the mask
+    images = []
+    for c in range(3):
+        emitted = flat[c] * uncovered
+        if scattering is not None:
+            emitted = exponential_scattering(emitted, pixel_um, *scattering[c])
+        images.append(uncovered * emitted + (1 - uncovered) * flat[c] * mask_reflectance / albedo[c])
+    return np.stack(images)
+
+
 def render_device(z_um, pixel_um, device, albedo, *, spp=32, max_depth=2, seed=0):
     """Images (3 bands, m, rows, columns) of the height field ``z_um`` (on a grid of
     ``pixel_um``, centred on the optical axis, h = 0 at the working distance) seen through
