@@ -682,6 +682,15 @@ class SpecularSeparation:
             return specular > ratio * np.maximum(np.asarray(images, dtype=np.float32) - specular, 0)
 
 
+def checked_specular_colour(colour):
+    """``colour`` (the surface reflection's relative strength in red, green and blue) as three
+    floats, or a :class:`SkinTopoError` when it is not three finite positive numbers."""
+    values = tuple(colour) if np.ndim(colour) == 1 else ()
+    if len(values) != 3 or not all(isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0 for v in values):
+        raise SkinTopoError(f"specular_colour must be three positive numbers (red, green, blue), got {colour!r}")
+    return tuple(float(v) for v in values)
+
+
 def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1, specular_colour=None):
     """Split each observation into a diffuse part with the skin's colour and a specular part
     with the light's colour, from the three bands taken under the same lights.
@@ -729,9 +738,7 @@ def separate_specular(red, green, blue, *, smoothing_px=5, lit_fraction=0.1, spe
     v = np.stack([np.asarray(c, dtype=np.float32) for c in (red, green, blue)], axis=-1)
     if v.ndim != 4:
         raise ValueError(f"expected three stacks of images (m, rows, columns), got shape {v.shape[:-1]}")
-    colour = np.ones(3) if specular_colour is None else np.asarray(specular_colour, dtype=float)
-    if colour.shape != (3,) or not (np.all(np.isfinite(colour)) and np.all(colour > 0)):
-        raise SkinTopoError(f"specular_colour must be three positive numbers (red, green, blue), got {specular_colour!r}")
+    colour = np.ones(3) if specular_colour is None else np.asarray(checked_specular_colour(specular_colour))
     colour = colour / colour.mean()
     along = (colour / np.linalg.norm(colour)).astype(np.float32)  # w_hat
     parallel = v @ along

@@ -41,7 +41,7 @@ from skintopo.defaults import (
 from skintopo.errors import SkinTopoError
 from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
-from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER
+from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, checked_specular_colour
 from skintopo.optics import optics_profile
 from skintopo.physics import PhysicsResult, physics_height
 from skintopo.pores import PoreMeasures, measure_pores
@@ -94,10 +94,8 @@ class ReconstructionOptions:
             return
         if self.highlights != "cross-band":
             raise SkinTopoError(f"a specular colour applies to cross-band highlights only (highlights is {self.highlights!r})")
-        colour = tuple(self.specular_colour)
-        if len(colour) != 3 or not all(isinstance(c, (int, float)) and np.isfinite(c) and c > 0 for c in colour):
-            raise SkinTopoError(f"the specular colour must be three positive numbers (red, green, blue), got {self.specular_colour!r}")
-        object.__setattr__(self, "specular_colour", tuple(float(c) for c in colour))  # a JSON list becomes a tuple
+        # a JSON list becomes a tuple
+        object.__setattr__(self, "specular_colour", checked_specular_colour(self.specular_colour))
 
 
 @dataclass(frozen=True)
