@@ -262,18 +262,25 @@ def spatial_parameters(height: HeightMap, *, s=0.2, directions=720):
             break
     region_rows, region_cols = np.nonzero(region)
     reach = np.hypot((region_rows - centre[0]) * dy, (region_cols - centre[1]) * dx).max() + 2 * max(dx, dy)
-    lengths = _decay_lengths(acf, centre, threshold, (dy, dx), directions, reach)
+    lengths = _decay_lengths(acf, centre, threshold, (dy, dx), directions, reach, shortest_only=touches)
     sal = float(np.nanmin(lengths)) if np.isfinite(lengths).any() else float("nan")
     str_ = float(sal / np.nanmax(lengths)) if np.isfinite(lengths).any() and not touches else float("nan")
     return {"Sal": sal, "Str": str_, "Std": _texture_direction(z, height.spacing)}
 
 
-def _decay_lengths(acf, centre, threshold, spacing, directions, reach):
+_DECAY_BLOCK = 32  # coarse steps per block of the decay-length search
+
+
+def _decay_lengths(acf, centre, threshold, spacing, directions, reach, shortest_only=False):
     """Distance (um) along each of ``directions`` rays from the centre, over [0, 180) degrees
     (the ACF is point-symmetric), at which the ACF first falls to the threshold; NaN where a
     ray leaves the field first. The first crossing is found on 1-pixel steps and then located
     within that step on quarter-pixel samples, with linear interpolation between samples.
-    Rays only need to reach across the central region (``reach``, um)."""
+    Rays only need to reach across the central region (``reach``, um). The steps are taken
+    in blocks of ``_DECAY_BLOCK`` outward, each only on the rays that have not crossed yet.
+    ``shortest_only``: only the shortest length is wanted (Str is undefined): the search
+    stops after the first block in which a ray crosses (a ray crossing in a later block is
+    longer than the end of this one); the other rays stay NaN."""
     dy, dx = spacing
     filled = np.where(np.isnan(acf), threshold, acf)
     angles = np.linspace(0, np.pi, directions, endpoint=False)
@@ -287,10 +294,16 @@ def _decay_lengths(acf, centre, threshold, spacing, directions, reach):
 
     step = min(dx, dy)
     coarse = np.arange(int(reach / step) + 2) * step
-    values, inside = sample(coarse[None, :], sin, cos)
-    below = (values <= threshold) & inside
-    first = below.argmax(axis=1)
-    crossed = np.flatnonzero(below.any(axis=1) & (first > 0))
+    first = np.full(directions, -1, np.intp)  # index of the first coarse sample at or below the threshold; -1: none yet
+    for start in range(0, coarse.size, _DECAY_BLOCK):
+        open_rays = np.flatnonzero(first < 0)
+        if open_rays.size == 0 or (shortest_only and (first > 0).any()):
+            break
+        values, inside = sample(coarse[None, start : start + _DECAY_BLOCK], sin[open_rays], cos[open_rays])
+        below = (values <= threshold) & inside
+        hit = below.any(axis=1)
+        first[open_rays[hit]] = start + below[hit].argmax(axis=1)
+    crossed = np.flatnonzero(first > 0)
     lengths = np.full(directions, np.nan)
     fine = coarse[first[crossed] - 1][:, None] + np.arange(5)[None, :] * (step / 4)
     values, _ = sample(fine, sin[crossed], cos[crossed])
