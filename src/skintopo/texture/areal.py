@@ -159,10 +159,10 @@ def _autocorrelation(z, mask, max_lag):
     rows, columns = z.shape
     lag_y, lag_x = (rows - 1, columns - 1) if max_lag is None else (min(max_lag[0], rows - 1), min(max_lag[1], columns - 1))
     raw = _linear_correlation(z, lag_y, lag_x)
-    if mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|)
-        overlap = np.outer(rows - np.abs(np.arange(-lag_y, lag_y + 1)), columns - np.abs(np.arange(-lag_x, lag_x + 1))).astype(float)
-    else:
-        overlap = np.round(_linear_correlation(mask.astype(float), lag_y, lag_x))
+    if mask.all():  # overlap of a full field: (rows - |lag_y|) (columns - |lag_x|), at least 1 at every lag asked for
+        raw /= np.outer(rows - np.abs(np.arange(-lag_y, lag_y + 1.0)), columns - np.abs(np.arange(-lag_x, lag_x + 1.0)))
+        return raw
+    overlap = np.round(_linear_correlation(mask.astype(float), lag_y, lag_x))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(overlap > 0, raw / overlap, np.nan)
 
@@ -189,10 +189,14 @@ def _linear_correlation(a, lag_y, lag_x):
     np.conj(half, out=half)
     half /= size_y  # row lags 0 .. lag_y
     circular = scipy.fft.irfft(half, n=size_x, axis=1, overwrite_x=True)
-    upper = np.concatenate([circular[:, size_x - lag_x :], circular[:, : lag_x + 1]], axis=1)
+    out = np.empty((2 * lag_y + 1, 2 * lag_x + 1))
+    upper = out[lag_y:]  # row lags 0 .. lag_y
+    upper[:, :lag_x] = circular[:, size_x - lag_x :]
+    upper[:, lag_x:] = circular[:, : lag_x + 1]
     # the correlation is point-symmetric, c(-t) = c(t): the negative row lags are the
     # positive ones turned by 180 degrees
-    return np.concatenate([upper[:0:-1, ::-1], upper])
+    out[:lag_y] = upper[:0:-1, ::-1]
+    return out
 
 
 def _centred_lags(circular, lag_y, lag_x):
