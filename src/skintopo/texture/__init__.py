@@ -89,7 +89,7 @@ def measure_texture(height: HeightMap, *, level_order=DEFAULT_LEVEL_ORDER, p=DEF
     # the height, spatial and functional parameters here. Both spend their time inside
     # NumPy/SciPy loops that release the GIL. BLAS is held to one thread meanwhile:
     # OpenBLAS's idle workers spin after each call and would take the other core.
-    with _thread_pools().limit(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=1) as pool:
+    with blas_threads(1), ThreadPoolExecutor(max_workers=1) as pool:
         surface = level(height, level_order) if level_order is not None else height
         fractal = pool.submit(_fractal_estimates, surface, tuple(fractal_methods))
         hybrid = pool.submit(hybrid_parameters, surface)
@@ -114,6 +114,11 @@ def _thread_pools():
     """The BLAS and OpenMP libraries loaded in this process (found once, on first use, when
     NumPy's and SciPy's are both loaded)."""
     return ThreadpoolController()
+
+
+def blas_threads(limit):
+    """Context manager: BLAS held to ``limit`` threads (process-wide) while it is open."""
+    return _thread_pools().limit(limits=limit, user_api="blas")
 
 
 def _fractal_estimates(surface, methods):
