@@ -500,3 +500,25 @@ def test_fractal_estimators_fill_missing_points_from_their_nearest_neighbour():
         assert measured == pytest.approx(fractal_dimension(HeightMap(filled, 1.0), method).dimension, abs=1e-12), method
     line = _fit("test", [0.0, 1.0, np.nan], [1.0, 3.0, 5.0], lambda slope: slope)
     assert line.dimension == pytest.approx(2.0) and line.intercept == pytest.approx(1.0)
+
+
+def test_the_shortest_decay_length_alone_is_the_shortest_of_all():
+    """When Str is undefined only Sal is wanted, and the decay-length search stops at the first
+    block of steps in which a ray crosses: its shortest length is the one of the search over
+    every ray to its end (long oblique stripes: the rays across them cross at different
+    distances, those along them never), and it looked at fewer rays' ends."""
+    from skintopo.texture import areal
+
+    rows, columns = np.mgrid[:300, :260]
+    z = scipy.ndimage.gaussian_filter(np.random.default_rng(5).normal(size=(300, 260)), (3.0, 1.5))
+    z = z / z.std() + 3.0 * np.sin(2 * np.pi * (columns * 0.8 + rows * 0.6) / 150.0)
+    height = HeightMap(z, 2.0)
+    acf = areal.autocorrelation(height)
+    centre = np.array([(acf.shape[0] - 1) // 2, (acf.shape[1] - 1) // 2])
+    threshold = 0.2 * acf[centre[0], centre[1]]
+    reach = np.hypot(*acf.shape) * 2.0
+    every = areal._decay_lengths(acf, centre, threshold, (2.0, 2.0), 720, reach)
+    shortest = areal._decay_lengths(acf, centre, threshold, (2.0, 2.0), 720, reach, shortest_only=True)
+    assert np.isnan(every).any() and np.nanmax(every) > 2 * np.nanmin(every)  # a case where stopping early matters
+    assert np.nanmin(shortest) == np.nanmin(every)
+    assert np.isfinite(shortest).sum() < np.isfinite(every).sum()
