@@ -460,6 +460,14 @@ def test_spatial_parameters_of_an_oblique_sinusoid(phi):
     assert np.isnan(values["Str"]) and abs(values["Std"] - phi) <= 0.5
 
 
+def _relief_with_oblique_stripes(stripes):
+    """Short-correlated relief (300 x 260, 2 um pixels, unit rms) plus oblique stripes of
+    amplitude ``stripes`` and 150-pixel period, whose autocorrelation never decays along them."""
+    rows, columns = np.mgrid[:300, :260]
+    z = scipy.ndimage.gaussian_filter(np.random.default_rng(5).normal(size=(300, 260)), (3.0, 1.5))
+    return HeightMap(z / z.std() + stripes * np.sin(2 * np.pi * (columns * 0.8 + rows * 0.6) / 150.0), 2.0)
+
+
 @pytest.mark.parametrize("stripes", [0.0, 3.0])
 def test_spatial_parameters_do_not_depend_on_the_lag_window(monkeypatch, stripes):
     """The lag window is only a speed-up: short-correlated relief (its region well inside the
@@ -467,10 +475,7 @@ def test_spatial_parameters_do_not_depend_on_the_lag_window(monkeypatch, stripes
     every lag at once) give the Sal, Str and Std of the autocorrelation over every lag."""
     from skintopo.texture import areal
 
-    rows, columns = np.mgrid[:300, :260]
-    z = scipy.ndimage.gaussian_filter(np.random.default_rng(5).normal(size=(300, 260)), (3.0, 1.5))
-    z = z / z.std() + stripes * np.sin(2 * np.pi * (columns * 0.8 + rows * 0.6) / 150.0)
-    height = HeightMap(z, 2.0)
+    height = _relief_with_oblique_stripes(stripes)
     window = areal._decay_window(areal._mean_removed(height), 0.2)
     assert (window is None) == (stripes > 0)  # both paths are taken
     windowed = spatial_parameters(height)
@@ -509,11 +514,7 @@ def test_the_shortest_decay_length_alone_is_the_shortest_of_all():
     distances, those along them never), and it looked at fewer rays' ends."""
     from skintopo.texture import areal
 
-    rows, columns = np.mgrid[:300, :260]
-    z = scipy.ndimage.gaussian_filter(np.random.default_rng(5).normal(size=(300, 260)), (3.0, 1.5))
-    z = z / z.std() + 3.0 * np.sin(2 * np.pi * (columns * 0.8 + rows * 0.6) / 150.0)
-    height = HeightMap(z, 2.0)
-    acf = areal.autocorrelation(height)
+    acf = areal.autocorrelation(_relief_with_oblique_stripes(3.0))
     centre = np.array([(acf.shape[0] - 1) // 2, (acf.shape[1] - 1) // 2])
     threshold = 0.2 * acf[centre[0], centre[1]]
     reach = np.hypot(*acf.shape) * 2.0
