@@ -401,10 +401,15 @@ class Measurement:
 
 
 def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions(), *, albedo=None, source=None, progress=iter,
-                   chromophores=None) -> Measurement:
+                   chromophores=None, alongside=None) -> Measurement:
     """Texture and fractal parameters (whole field and each region), wrinkle and pore
     measures of ``height``; ``chromophores`` (melanin and haemoglobin maps) are kept with
-    them. ``progress`` wraps the iteration over the steps (each a name; e.g. a tqdm bar)."""
+    them. ``progress`` wraps the iteration over the steps (each a name; e.g. a tqdm bar).
+
+    ``alongside``: a callable of the height map, run on this thread once the texture and
+    pores are measured, while the worker thread still segments or measures the wrinkles
+    (the longer of the two); work that needs only the height fills that wait (``skintopo
+    measure`` writes ``height.x3p`` there: 0.25 s of zlib at 1024 x 1024)."""
     regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
     texture_options = {"level_order": options.texture.level_order, "p": options.texture.p, "q": options.texture.q}
     texture, fractal_results = {}, ()
@@ -426,6 +431,8 @@ def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions()
                 # about 0.65 s to a 1024^2 map (bench_measure)
                 pores = measure_pores(height, **options.pores.as_kwargs())
             elif step == "wrinkle segmentation":
+                if alongside is not None:
+                    alongside(height)
                 segmentation = segmenting.result()
             else:
                 wrinkles = measuring.result()
@@ -470,12 +477,13 @@ def colour_maps(albedo, pixel_um, options: MeasureOptions = MeasureOptions(), re
     return maps, f"melanin and haemoglobin indices ({maps.reflectance} reflectance)"
 
 
-def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None, step_progress=iter) -> Measurement:
+def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progress=iter, on_note=None, step_progress=iter,
+                        alongside=None) -> Measurement:
     """Load an acquisition folder, make the height ``options.height`` asks for and measure it.
 
     ``progress`` wraps the iteration over the bands, ``step_progress`` that over the measure's
-    steps (:func:`measure_height`); ``on_note`` receives notes meant for the user (e.g. an
-    assumed pixel size)."""
+    steps (:func:`measure_height`, which runs ``alongside``); ``on_note`` receives notes meant
+    for the user (e.g. an assumed pixel size)."""
     acquisition = load_acquisition(path, pixel_um=options.reconstruction.pixel_um, saturation=options.reconstruction.saturation,
                                    bytes_per_pixel=PROCESSING_BYTES_PER_PIXEL["measure"])
     if acquisition.pixel_um_assumed and on_note is not None:
@@ -495,7 +503,8 @@ def measure_acquisition(path, options: MeasureOptions = MeasureOptions(), progre
     # are not needed to measure the height: let them go first
     del acquisition, made
     chromophores, source["chromophores"] = colour_maps(band_albedo, pixel_um, options, reference, name)
-    return measure_height(height, options, albedo=albedo, source=source, progress=step_progress, chromophores=chromophores)
+    return measure_height(height, options, albedo=albedo, source=source, progress=step_progress, chromophores=chromophores,
+                          alongside=alongside)
 
 
 def acquisition_summary(acquisition):

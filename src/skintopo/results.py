@@ -85,8 +85,10 @@ def measurement_settings(measurement):
             "segmentation": measurement.segmentation.parameters, "skintopo_version": __version__}
 
 
-def write_measurement(folder, measurement, *, title, command="measure", evaluations=None, cross_sections=()):
-    """Write a :class:`skintopo.pipeline.Measurement` into ``folder`` (which must exist)."""
+def write_measurement(folder, measurement, *, title, command="measure", evaluations=None, cross_sections=(), height_written=False):
+    """Write a :class:`skintopo.pipeline.Measurement` into ``folder`` (which must exist);
+    ``height_written``: ``folder/height.x3p`` is already written (:func:`write_height_file`,
+    e.g. alongside the measure: :func:`skintopo.pipeline.measure_height`)."""
     from skintopo.report import build_report
 
     folder = Path(folder)
@@ -101,7 +103,7 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     # the height map's x3p (zlib compression, 0.2 s at 1024 x 1024, without the GIL) is written
     # beside the other files and the report
     with ThreadPoolExecutor(max_workers=1) as pool:
-        saving = pool.submit(measurement.height.save, folder / "height.x3p")
+        saving = None if height_written else pool.submit(write_height_file, folder, measurement.height)
         write_json(folder / "parameters.json", {"summary": summary, "parameters": rows})
         _write_csv(folder / "parameters.csv", PARAMETER_COLUMNS, rows)
         write_wrinkle_files(folder, measurement.wrinkles, measurement.segmentation)
@@ -119,8 +121,16 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
                               evaluations=evaluations, settings=settings, cross_sections=cross_sections, pores=measurement.pores,
                               chromophores=measurement.chromophores, chromophore_statistics=colour)
         (folder / "report.html").write_text(report, encoding="utf-8")
-        saving.result()
+        if saving is not None:
+            saving.result()
+    if not (folder / "height.x3p").is_file():
+        raise SkinTopoError(f"{folder}: height.x3p was not written")
     return summary
+
+
+def write_height_file(folder, height):
+    """Write the measured height map as ``folder/height.x3p``, the file a result folder holds."""
+    height.save(Path(folder) / "height.x3p")
 
 
 def _read_json(path):

@@ -149,6 +149,28 @@ def test_measure_command(tmp_path, capsys):
     assert "Sa" in capsys.readouterr().out
     assert main(["measure", str(tmp_path / "h.x3p"), "-o", str(tmp_path / "o2"), "--region", "far=0,0,5000,5000", "-q"]) == 2
     assert not (tmp_path / "o2").exists()
+    written, given = HeightMap.load(tmp_path / "out" / "height.x3p"), HeightMap.load(tmp_path / "h.x3p")  # written alongside the wrinkles
+    assert written.spacing == given.spacing == (5.0, 5.0) and np.array_equal(written.z, given.z)
+    assert np.abs(written.z - z).max() < 1e-9 * np.abs(z).max()  # um -> m -> um
+
+
+def test_a_measure_that_fails_after_the_height_is_written_leaves_no_output(tmp_path, capsys, monkeypatch):
+    """height.x3p is written into the staging folder while the wrinkles are measured; when the
+    measure then fails, neither the output folder nor the staging folder is left behind."""
+    from skintopo import pipeline
+    from skintopo.errors import SkinTopoError
+
+    HeightMap(fbm(96, 0.6, 1) * 30, 5.0).save(tmp_path / "h.x3p")
+
+    def failing(height, segmentation, **settings):
+        raise SkinTopoError("wrinkle measures failed (planted)")
+
+    monkeypatch.setattr(pipeline, "measure_wrinkles", failing)
+    written = []
+    monkeypatch.setattr("skintopo.results.write_height_file", lambda folder, height: written.append(folder) or height.save(folder / "height.x3p"))
+    assert main(["measure", str(tmp_path / "h.x3p"), "-o", str(tmp_path / "out"), "-q"]) == 2
+    assert "planted" in capsys.readouterr().err
+    assert len(written) == 1 and not written[0].exists() and sorted(p.name for p in tmp_path.iterdir()) == ["h.x3p"]
 
 
 def test_progress_bars_show_in_a_terminal_of_unknown_size(tmp_path):
