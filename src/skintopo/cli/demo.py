@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from functools import partial
 from pathlib import Path
 
 from skintopo.cli import options as shared
@@ -23,7 +24,7 @@ def run(args):
         measure_height,
     )
     from skintopo.report import cross_section_pngs
-    from skintopo.results import run_header, write_measurement
+    from skintopo.results import run_header, write_height_file, write_measurement
     from skintopo.segmentation import segmentation_quality
     from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 
@@ -54,9 +55,10 @@ def run(args):
                   "height": made.description}
         chromophores, source["chromophores"] = acquisition_chromophores(acquisition, made.bands, options)
         measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args),
-                                     chromophores=chromophores)
+                                     chromophores=chromophores, alongside=partial(write_height_file, result_folder))
         write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
-                          evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels))
+                          evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels),
+                          height_written=True)
         segmentation = measurement.segmentation  # the wrinkles of the report (the correction segments its own height)
         summary = run_header(
             "demo", acquisition=acquisition_summary(acquisition), preset=args.preset, skin=args.skin, seed=args.seed,
