@@ -123,16 +123,18 @@ def centre_lines(skeleton, spacing):
     The longest path is found by two sweeps of a minimum-cost path search over the skeleton
     (scikit-image ``MCP_Geometric``, steps of dx, dy or the diagonal): the point farthest
     from any start, then the point farthest from that one; exact when the piece has no
-    loops, as skeletons of wrinkles have not.
+    loops, as skeletons of wrinkles have not. Each piece is searched in its own bounding box
+    (pieces do not touch, even diagonally, so no path leaves it).
     """
     pieces = label(skeleton, connectivity=2)
-    cost = np.where(skeleton, 1.0, np.inf)
     paths = []
-    for piece in range(1, pieces.max() + 1):
-        start = tuple(np.argwhere(pieces == piece)[0])
+    for piece, box in enumerate(scipy.ndimage.find_objects(pieces), 1):
+        own = pieces[box] == piece
+        cost = np.where(own, 1.0, np.inf)
+        start = tuple(np.argwhere(own)[0])
         far = _farthest(cost, start, spacing)[0]
         end, search = _farthest(cost, far, spacing)
-        paths.append(np.array(search.traceback(end)))
+        paths.append(np.array(search.traceback(end)) + [box[0].start, box[1].start])
     return paths
 
 
