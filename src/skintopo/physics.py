@@ -625,6 +625,15 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     the neighbours decided at full resolution all 4 get the full search's m, k and height (and
     4 of 4 256 x 256 foreheads made to search on 128 x 128). k is not taken from the block
     means: there it came out 2% high and the heights 0.3-0.8 um RMS worse.
+
+    A best m at the grid's broadest value is no highlight, and no lobe is subtracted (its fit
+    is recorded as ``rejected``): the bands' disagreement then grows with a lobe's breadth
+    beyond any skin's (m 0.3-0.45, field notes), which is what a smooth model error does
+    (interreflection on the microrelief, a non-Lambertian diffuse part), not a highlight. On
+    Mitsuba's diffuse renders (bench_physics_mitsuba, edge-calibrated kernels) the lobe fit
+    chose m = 0.5 in every pass, and subtracting it cost 2.68 -> 2.12 um (forehead-moderate)
+    and 6.80 -> 4.33 um (forehead-high); on every coated render and every simulated forehead
+    (default-v1, 36 fields) the best m was inside the grid, so nothing changed there.
     """
     lobes = SpecularLobe(normals, lights, visible)
     fit = _LobeFit(fourier, bands.spectra, bands.gain, lobes)
@@ -643,6 +652,9 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     if search is not fit:  # the block means find the neighbourhood; the full resolution decides within it
         best = max(with_neighbours(best), key=fit.explained)
     _, scale, lobe = fit.fits[best]
+    if best == last:  # the broadest lobe searched: the disagreement is not a highlight (docstring)
+        rejected = {"roughness": float(ROUGHNESS_GRID[best]), "scale": float(scale)}
+        return {"roughness": None, "scale": 0.0, "rejected": rejected}, np.zeros_like(lobe)
     return {"roughness": float(ROUGHNESS_GRID[best]), "scale": float(scale)}, scale * lobe
 
 
