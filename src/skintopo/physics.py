@@ -632,8 +632,10 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     (interreflection on the microrelief, a non-Lambertian diffuse part), not a highlight. On
     Mitsuba's diffuse renders (bench_physics_mitsuba, edge-calibrated kernels) the lobe fit
     chose m = 0.5 in every pass, and subtracting it cost 2.68 -> 2.12 um (forehead-moderate)
-    and 6.80 -> 4.33 um (forehead-high); on every coated render and every simulated forehead
-    (default-v1, 36 fields) the best m was inside the grid, so nothing changed there.
+    and 6.80 -> 4.33 um (forehead-high); on every coated render the best m was inside the grid.
+    In the simulator (seeds 1-6 of default-v1, 1-3 of literature and paper-calibrated, each
+    with estimated, true and edge-calibrated kernels) one height changed: paper-calibrated
+    forehead-high light seed 2, edge-calibrated, 40.06 -> 20.60 um (2026-12-06).
     """
     lobes = SpecularLobe(normals, lights, visible)
     fit = _LobeFit(fourier, bands.spectra, bands.gain, lobes)
