@@ -631,7 +631,7 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     beyond any skin's (m 0.3-0.45, field notes), which is what a smooth model error does
     (interreflection on the microrelief, a non-Lambertian diffuse part), not a highlight. On
     Mitsuba's diffuse renders (bench_physics_mitsuba, edge-calibrated kernels) the lobe fit
-    chose m = 0.5 in every pass, and subtracting it cost 2.68 -> 2.12 um (forehead-moderate)
+    chose m = 0.5 (the grid's broadest), and subtracting it cost 2.68 -> 2.12 um (forehead-moderate)
     and 6.80 -> 4.33 um (forehead-high); on every coated render the best m was inside the grid.
     In the simulator (seeds 1-6 of default-v1, 1-3 of literature and paper-calibrated, each
     with estimated, true and edge-calibrated kernels) one height changed: paper-calibrated
