@@ -4,7 +4,9 @@ the format's standard says so).
 =========  =====  ==========================================================================
 format     dir    how
 =========  =====  ==========================================================================
-``.x3p``   r/w    ISO 25178-72 via x3pio; metres. Record2 names only the software and time.
+``.x3p``   r/w    ISO 25178-72 via x3pio; metres, written as binary32 (type F: 24 significant
+                  bits, 0.03 nm at 500 um; any type read). Record2 names only the software
+                  and time.
 ``.sdf``   r/w    ISO 25178-71 via sdfio; metres, binary64.
 ``.gwy``   r/w    Gwyddion via gwyfile; metres, missing points as Gwyddion's mask (/0/mask).
 ``.tif``   r/w    16-bit TIFF via tifffile: heights quantised between the map's minimum and
@@ -107,7 +109,10 @@ def write_height(path, z_um, spacing_um):
         elif suffix == ".x3p":
             import x3pio
 
-            x3pio.write(tmp, metres, x_scale=dx * METRES_PER_MICROMETRE, y_scale=dy * METRES_PER_MICROMETRE)
+            # binary32, not binary64: the low 29 bits of a measured height are noise, and zlib
+            # (x3pio compresses at its default level) takes half the time on half the bytes
+            # (1024 x 1024: 0.29 -> 0.14 s, 8.0 -> 3.8 MB; heights change by at most 6e-8 relative)
+            x3pio.write(tmp, metres, x_scale=dx * METRES_PER_MICROMETRE, y_scale=dy * METRES_PER_MICROMETRE, z_type=x3pio.DataType.FLOAT32)
         elif suffix == ".sdf":
             import sdfio
 

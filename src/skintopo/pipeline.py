@@ -409,7 +409,8 @@ def measure_height(height: HeightMap, options: MeasureOptions = MeasureOptions()
     ``alongside``: a callable of the height map, run on this thread once the texture and
     pores are measured, while the worker thread still segments or measures the wrinkles
     (the longer of the two); work that needs only the height fills that wait (``skintopo
-    measure`` writes ``height.x3p`` there: 0.25 s of zlib at 1024 x 1024)."""
+    measure`` writes ``height.x3p`` and makes the report's height views there:
+    :class:`skintopo.results.HeightOutputs`)."""
     regions = {"field": height} | {name: crop_region(height, box, name) for name, box in options.regions}
     texture_options = {"level_order": options.texture.level_order, "p": options.texture.p, "q": options.texture.q}
     texture, fractal_results = {}, ()

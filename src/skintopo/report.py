@@ -20,6 +20,7 @@ import functools
 import importlib.resources
 import io
 import json
+from dataclasses import dataclass
 
 import numpy as np
 from markupsafe import Markup
@@ -266,8 +267,40 @@ def _float32_base64(values):
     return base64.b64encode(np.ascontiguousarray(values, dtype="<f4").tobytes()).decode("ascii")
 
 
+@dataclass(frozen=True)
+class HeightViews:
+    """The parts of the report that need the height map alone (:func:`height_views`):
+    ``shaded_height`` (:func:`shaded_height_picture`) and ``viewer``, the 3-D view's mesh and
+    the profile viewer's grid (float32 base64), the 3-D view's height exaggeration and the
+    median height."""
+
+    height: object
+    shaded_height: dict
+    viewer: dict
+
+
+def height_views(height) -> HeightViews:
+    """The :class:`HeightViews` of ``height``; the page template is loaded and compiled here
+    too (jinja2 keeps it), so that a caller who makes the views while other work runs (``skintopo
+    measure`` does, while the wrinkles are measured: :func:`skintopo.pipeline.measure_height`)
+    leaves :func:`build_report` only what needs the measures."""
+    _environment().get_template("report.html")
+    z, step = _decimate(np.asarray(height.z, float), MESH_CELLS)
+    profile_z, profile_step = _decimate(np.asarray(height.z, float), PROFILE_POINTS)
+    finite_z = z[np.isfinite(z)]
+    span = float(np.ptp(finite_z)) if finite_z.size else 1.0
+    size = max(height.shape[1] * height.spacing[1], height.shape[0] * height.spacing[0])
+    viewer = {  # profiles along image columns: "z" holds one row per column
+        "z": _float32_base64(profile_z.T), "shape": profile_z.T.shape,
+        "dx": height.spacing[1] * profile_step, "dy": height.spacing[0] * profile_step,
+        "mesh": {"z": _float32_base64(z), "shape": z.shape, "dx": height.spacing[1] * step, "dy": height.spacing[0] * step},
+        "exaggeration": 0.25 * size / max(span, 1e-9), "mid": float(np.median(finite_z)) if finite_z.size else 0.0,
+    }
+    return HeightViews(height, shaded_height_picture(height), viewer)
+
+
 def build_report(*, title, height, albedo=None, parameters=(), regions=None, fractal_results=(), wrinkles=None, evaluations=None,
-                 settings=None, cross_sections=(), pores=None, chromophores=None, chromophore_statistics=None):
+                 settings=None, cross_sections=(), pores=None, chromophores=None, chromophore_statistics=None, views=None):
     """The report as one HTML string (see the module notes). ``parameters`` is a list of
     :class:`skintopo.texture.Parameter` (the whole field); ``regions`` {name: (box in um
     x0, y0, x1, y1, its list of Parameter)} for the extra regions; ``wrinkles`` a :class:`skintopo.wrinkles.WrinkleMeasures`;
@@ -275,26 +308,17 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
     ``cross_sections`` the PNGs of :func:`cross_section_pngs`; ``settings`` a dict of inputs
     and options, shown as given (escaped); ``pores`` a :class:`skintopo.pores.PoreMeasures`;
     ``chromophores`` a :class:`skintopo.chromophores.ChromophoreMaps` with its
-    ``chromophore_statistics`` per region."""
+    ``chromophore_statistics`` per region; ``views``: :func:`height_views` of ``height`` when
+    already made (made here otherwise)."""
     from skintopo.texture import parameter_note
 
+    views = views if views is not None and views.height is height else height_views(height)
     field_mm = (height.shape[1] * height.spacing[1] / 1000, height.shape[0] * height.spacing[0] / 1000)
-    surface_images = [shaded_height_picture(height)]
+    surface_images = [views.shaded_height]
     if albedo is not None:
         surface_images.append(albedo_picture(albedo, height))
-    z, step = _decimate(np.asarray(height.z, float), MESH_CELLS)
-    profile_z, profile_step = _decimate(np.asarray(height.z, float), PROFILE_POINTS)
-    finite_z = z[np.isfinite(z)]
-    span = float(np.ptp(finite_z)) if finite_z.size else 1.0
-    size = max(field_mm) * 1000
-    exaggeration = 0.25 * size / max(span, 1e-9)
-    grid = {  # profiles along image columns: "z" holds one row per column
-        "z": _float32_base64(profile_z.T), "shape": profile_z.T.shape,
-        "dx": height.spacing[1] * profile_step, "dy": height.spacing[0] * profile_step,
-    }
-    mesh = {"z": _float32_base64(z), "shape": z.shape, "dx": height.spacing[1] * step, "dy": height.spacing[0] * step}
-    payload = json.dumps(grid | {"mesh": mesh, "exaggeration": exaggeration, "mid": float(np.median(finite_z)) if finite_z.size else 0.0,
-                                 "fractal": fractal_plot_data(fractal_results)})
+    exaggeration = views.viewer["exaggeration"]
+    payload = json.dumps(views.viewer | {"fractal": fractal_plot_data(fractal_results)})
     context = {
         "title": title, "field_mm": field_mm, "shape": height.shape, "pixel_um": height.spacing[1],
         "missing_percent": 100 * (1 - height.mask.mean()), "surface_images": surface_images, "exaggeration": exaggeration,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from functools import partial
 from pathlib import Path
 
 from skintopo.cli import options as shared
@@ -24,7 +23,7 @@ def run(args):
         measure_height,
     )
     from skintopo.report import cross_section_pngs
-    from skintopo.results import run_header, write_height_file, write_measurement
+    from skintopo.results import HeightOutputs, run_header, write_measurement
     from skintopo.segmentation import segmentation_quality
     from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition, write_synthetic_acquisition
 
@@ -54,11 +53,12 @@ def run(args):
         source = {"input": "simulated", "kind": "acquisition", "preset": args.preset, "skin": args.skin, "seed": args.seed,
                   "height": made.description}
         chromophores, source["chromophores"] = acquisition_chromophores(acquisition, made.bands, options)
+        early = HeightOutputs(result_folder)  # height.x3p and the report's height views, made while the wrinkles are measured
         measurement = measure_height(made.height, options, albedo=made.albedo, source=source, progress=shared.step_progress(args),
-                                     chromophores=chromophores, alongside=partial(write_height_file, result_folder))
+                                     chromophores=chromophores, alongside=early)
         write_measurement(result_folder, measurement, title=f"skintopo demo: simulated {args.preset}, {args.skin} skin",
                           evaluations=evaluations, cross_sections=cross_section_pngs(heights, surface.height, surface.wrinkle_labels),
-                          height_written=True)
+                          early=early)
         segmentation = measurement.segmentation  # the wrinkles of the report (the correction segments its own height)
         summary = run_header(
             "demo", acquisition=acquisition_summary(acquisition), preset=args.preset, skin=args.skin, seed=args.seed,

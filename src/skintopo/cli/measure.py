@@ -4,7 +4,6 @@ haemoglobin maps, with the report."""
 from __future__ import annotations
 
 import time
-from functools import partial
 from pathlib import Path
 
 from skintopo.cli import options as shared
@@ -15,14 +14,14 @@ def run(args):
 
     from skintopo.outputs import check_output_folder, staged_output_folder
     from skintopo.pipeline import measure_acquisition, measure_height
-    from skintopo.results import load_albedo_beside, load_height_input, write_height_file, write_measurement
+    from skintopo.results import HeightOutputs, load_albedo_beside, load_height_input, write_measurement
 
     check_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input])
     started = time.perf_counter()
     options = shared.measure_options(args)
     path = Path(args.input)
     with staged_output_folder(args.out, overwrite=args.overwrite, inputs=[args.input]) as staging:
-        alongside = partial(write_height_file, staging)  # written while the wrinkles are measured (measure_height)
+        alongside = HeightOutputs(staging)  # height.x3p and the report's height views, made while the wrinkles are measured
         if path.is_dir() and not (path / "height.x3p").is_file():
             measurement = measure_acquisition(path, options, shared.band_progress(args), on_note=lambda note: shared.say(args, f"note: {note}"),
                                               step_progress=shared.step_progress(args), alongside=alongside)
@@ -31,7 +30,7 @@ def run(args):
             measurement = measure_height(load_height_input(path, args.pixel_um), options, albedo=load_albedo_beside(path), source=source,
                                          progress=shared.step_progress(args), alongside=alongside)
         for _ in shared.step_progress(args, desc="write")(["report and tables"]):
-            write_measurement(staging, measurement, title=f"skintopo: {path.name}", height_written=True)
+            write_measurement(staging, measurement, title=f"skintopo: {path.name}", early=alongside)
     if not args.quiet:
         print(f"{'region':<10} {'parameter':<24} {'value':>14} unit")
         for row in measurement.parameter_rows():
