@@ -103,9 +103,14 @@ def gaussian_moments(image, sigmas, orders, out=None):
     moments about each point directly, rather than smoothing y' f and x' f and subtracting
     y and x times the smoothing, saves a forward FFT per moment and the cancellation
     between large terms far from the centre.
+
+    A float32 ``image`` is filtered in single precision (the FFTs take half the time; relative
+    rounding about 1e-7), for callers that need no more (a structure tensor's orientation);
+    anything else in double precision.
     """
-    image = np.asarray(image, dtype=np.float64)
-    out = np.empty((len(orders), *image.shape)) if out is None else out
+    image = np.asarray(image)
+    image = image if image.dtype == np.float32 else image.astype(np.float64, copy=False)
+    out = np.empty((len(orders), *image.shape), image.dtype) if out is None else out
     if max(sigmas) < _FFT_SIGMA_PX:
         for index, (p, q) in enumerate(orders):
             along_rows = scipy.ndimage.correlate1d(image, _moment_kernel(sigmas[0], p), axis=0, mode="constant")
@@ -116,8 +121,8 @@ def gaussian_moments(image, sigmas, orders, out=None):
     spectrum = scipy.fft.rfft2(image, s=shape, workers=-1)
     frequency_rows, frequency_columns = scipy.fft.fftfreq(shape[0]), scipy.fft.rfftfreq(shape[1])
     for index, (p, q) in enumerate(orders):
-        product = spectrum * _moment_transfer(sigmas[0], frequency_rows, p)[:, None]
-        product *= _moment_transfer(sigmas[1], frequency_columns, q)[None, :]
+        product = spectrum * _moment_transfer(sigmas[0], frequency_rows, p)[:, None].astype(spectrum.dtype)
+        product *= _moment_transfer(sigmas[1], frequency_columns, q)[None, :].astype(spectrum.dtype)
         # The padding sits after the data (rfft2 pads at the end); circular wrap-around only
         # reaches into the padding, which is at least 4 sigma wide on each side.
         out[index] = scipy.fft.irfft2(product, s=shape, workers=-1, overwrite_x=True)[:rows, :columns]

@@ -240,7 +240,9 @@ def local_maximum_along_valley(depth, region, window, spacing, min_depth_um, str
     dy, dx = pixel_spacing(spacing)
     gradient_y, gradient_x = np.gradient(depth, dy, dx)
     sigma = (ORIENTATION_SCALE_UM / dy, ORIENTATION_SCALE_UM / dx)
-    jxx, jxy, jyy = (gaussian_moments(a * b, sigma, ((0, 0),))[0] for a, b in
+    # in single precision: the tensor gives only each point's direction bin (the same
+    # segmentation as in double precision on the bench's fields; 1024 x 1024: 0.09 -> 0.05 s)
+    jxx, jxy, jyy = (gaussian_moments((a * b).astype(np.float32), sigma, ((0, 0),))[0] for a, b in
                      ((gradient_x, gradient_x), (gradient_x, gradient_y), (gradient_y, gradient_y)))
     bins = _orientation_bins(0.5 * np.arctan2(2 * jxy, jxx - jyy))  # of the gradient's axial direction
     if straight_direction_deg is not None:
