@@ -461,8 +461,9 @@ def _masked_closing(lowered, invalid, footprint):
     segment); masked ones +inf or whatever the erosion left there.
 
     OpenCV's ``dilate`` / ``erode`` (vectorised over rows, the GIL released): a 31-pixel
-    segment on a 1024 x 1024 map takes 2-8 ms per pass by the angle (23 ms at 22.5 degrees
-    through SciPy's generic N-d iterator, 2026-12-04), as fast as the compiled loop it
+    segment on a 1024 x 1024 map of float64 takes 2-8 ms per pass by the angle (23 ms at 22.5
+    degrees through SciPy's generic N-d iterator, 2026-12-04; float32, as
+    :func:`_closing_input` gives, 3-5x less), as fast as the compiled loop it
     replaces without its 0.6 s of loading per process (Numba's import and cache). Van Herk /
     Gil-Werman running extrema would need the same digital line through every pixel, which a
     rounded line at most angles is not."""
@@ -476,10 +477,20 @@ def _masked_closing(lowered, invalid, footprint):
 
 
 def _closing_input(z, mask):
-    """(heights as float64, valid points, the heights with masked points at -inf)."""
+    """(heights as float64, valid points, the heights less ``offset`` in single precision with
+    masked points at -inf, ``offset``). The closings run in single precision, 3-5x faster in
+    OpenCV than in double (a 17-pixel segment on 1024 x 1024: 10 -> 2 ms a closing): rounding
+    is monotone, so it commutes with the maxima and minima, and the closing of the rounded
+    heights is the exact closing rounded (:func:`_exact_where_unchanged` then gives a point
+    the closing leaves at its own height that height exactly). The heights are centred on
+    their mid-range first, so the rounding (half an ulp, at most 2^-24 of the half-range:
+    3e-6 um over a 100 um range) does not grow with an offset. On the simulated foreheads and
+    pore fields the segmentation and the pores found are identical, the measures within 2e-7
+    relative."""
     z = np.asarray(z, dtype=np.float64)
     valid = np.isfinite(z) if mask is None else (np.asarray(mask, dtype=bool) & np.isfinite(z))
-    return z, valid, np.where(valid, z, -np.inf)
+    offset = 0.5 * (z[valid].min() + z[valid].max()) if valid.any() else 0.0
+    return z, valid, np.where(valid, z - offset, -np.inf).astype(np.float32), offset
 
 
 def line_segment_closing(z, spacing, length_um, angle_deg, mask=None):
@@ -489,9 +500,16 @@ def line_segment_closing(z, spacing, length_um, angle_deg, mask=None):
     Masked points take no part: they are left out of the maximum and of the minimum (a
     point whose whole segment is masked stays as it was). Returns a new array.
     """
-    z, valid, lowered = _closing_input(z, mask)
+    z, valid, lowered, offset = _closing_input(z, mask)
     closed = _masked_closing(lowered, ~valid, line_segment_footprint(length_um, angle_deg, spacing))
-    return np.where(valid, closed, z)
+    return _exact_where_unchanged(closed, lowered, z, valid, offset)
+
+
+def _exact_where_unchanged(closed, lowered, z, valid, offset):
+    """A single-precision closing (of ``lowered``, :func:`_closing_input`) back in double
+    precision: the heights ``z`` themselves where the closing left a point at its own
+    (rounded) height and where it is masked, the closing plus ``offset`` elsewhere."""
+    return np.where(~valid | (closed == lowered), z, closed + offset)
 
 
 def line_segment_closing_extremes(z, spacing, length_um, angles_deg, mask=None, return_lowest_index=False):
@@ -500,7 +518,7 @@ def line_segment_closing_extremes(z, spacing, length_um, angles_deg, mask=None, 
     closing that gave the minimum (the first of equal ones): the direction along which a
     valley survives. The closings run on two threads (OpenCV's filters release the GIL) and
     are folded in as they come, so two maps are held, not one per angle."""
-    z, valid, lowered = _closing_input(z, mask)
+    z, valid, lowered, offset = _closing_input(z, mask)
     invalid = ~valid
     lowest = highest = index = None
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -514,9 +532,8 @@ def line_segment_closing_extremes(z, spacing, length_um, angles_deg, mask=None, 
                     index[closed < lowest] = number
                 np.minimum(lowest, closed, out=lowest)
                 np.maximum(highest, closed, out=highest)
-    # masked points keep their heights (valid ones are finite in every closing)
-    np.copyto(lowest, z, where=invalid)
-    np.copyto(highest, z, where=invalid)
+    # back in double precision; masked points keep their heights (valid ones are finite in every closing)
+    lowest, highest = (_exact_where_unchanged(closed, lowered, z, valid, offset) for closed in (lowest, highest))
     if return_lowest_index:
         index[invalid] = 0
     return (lowest, highest, index) if return_lowest_index else (lowest, highest)

@@ -270,10 +270,12 @@ def test_line_segment_closing_leaves_masked_points_out():
 
 
 @pytest.mark.parametrize("angle", [0.0, 15.0, 45.0, 75.0, 90.0, 135.0, 165.0])
-def test_line_segment_closing_is_scipys_grey_closing_with_the_footprint_bit_for_bit(angle):
-    """The compiled closing against SciPy's grey dilation then erosion with the same
-    footprint (masked points -inf, then +inf; mode "constant"), on a rough map with scattered
-    masked points and rectangular pixels, segment reaching past the edges."""
+def test_line_segment_closing_is_scipys_grey_closing_rounded_to_single_precision(angle):
+    """The OpenCV closing against SciPy's grey dilation then erosion with the same footprint
+    in double precision (masked points -inf, then +inf; mode "constant"), on a rough map with
+    scattered masked points and rectangular pixels, segment reaching past the edges: a point
+    the closing leaves at its own height keeps it bit for bit, any other is within half an
+    ulp of single precision of the half-range (the heights are centred on their mid-range)."""
     rng = np.random.default_rng(11)
     z = rng.normal(size=(60, 70)).cumsum(axis=1)
     mask = rng.random(z.shape) > 0.05
@@ -281,7 +283,12 @@ def test_line_segment_closing_is_scipys_grey_closing_with_the_footprint_bit_for_
     dilated = scipy.ndimage.grey_dilation(np.where(mask, z, -np.inf), footprint=footprint, mode="constant", cval=-np.inf)
     closed = scipy.ndimage.grey_erosion(np.where(mask, dilated, np.inf), footprint=footprint, mode="constant", cval=np.inf)
     expected = np.where(mask & np.isfinite(closed), closed, z)
-    np.testing.assert_array_equal(line_segment_closing(z, (10.0, 12.0), 300.0, angle, mask), expected)
+    result = line_segment_closing(z, (10.0, 12.0), 300.0, angle, mask)
+    unchanged = expected == z
+    assert 0.05 < unchanged.mean() < 0.95  # both kinds of points are tested
+    np.testing.assert_array_equal(result[unchanged], z[unchanged])
+    half_range = 0.5 * (z[mask].max() - z[mask].min())
+    assert np.abs(result - expected).max() <= 2.0**-24 * half_range
 
 
 @pytest.mark.parametrize("angle", [0.0, 17.0, 45.0, 90.0, 120.0, 178.0])
