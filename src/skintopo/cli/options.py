@@ -91,12 +91,16 @@ def bar(iterable=None, *, quiet, desc, unit, total=None, leave=False):
 
 
 def progress(iterable, *, quiet, desc, total=None):
-    return bar(iterable, quiet=quiet, desc=desc, unit="band", total=total)
+    # with -q, no bar and no tqdm to import (10 ms with multiprocessing, which it loads)
+    return iterable if quiet else bar(iterable, quiet=quiet, desc=desc, unit="band", total=total)
 
 
 def step_progress(args, desc="measure"):
     """A progress bar over named steps (``progress`` of :func:`skintopo.pipeline.measure_height`)
     that names the step running; on stderr, in a terminal or a pipe, none with -q."""
+    if args.quiet:
+        return iter
+
     def wrap(steps):
         steps_bar = bar(steps, quiet=args.quiet, desc=desc, unit="step")
         for step in steps_bar:
