@@ -125,3 +125,16 @@ def test_wrinkle_overlay_tints_each_wrinkle_and_labels_it_at_its_centroid():
     picture = wrinkle_overlay_picture(HeightMap(z, 10.0), measures)
     np.testing.assert_allclose([label[:2] for label in picture["labels"]], [(50.0, 24.0), (50.0, 64.0)])  # of 0.8 x 0.5 mm
     assert [label[2] for label in picture["labels"]] == ["1", "2"]
+
+
+def test_height_views_made_early_give_the_same_page_and_only_for_their_own_height():
+    """The views `skintopo measure` makes while the wrinkles are measured are the ones the
+    report makes itself; views of another height map are not used."""
+    from skintopo.report import height_views
+
+    z = make_surface(preset_spec("forehead-low", size_px=96), seed=2).height.z
+    height, other = HeightMap(z, 20.0), HeightMap(z[::-1].copy(), 20.0)
+    page = build_report(title="t", height=height)
+    assert build_report(title="t", height=height, views=height_views(height)) == page
+    assert build_report(title="t", height=height, views=height_views(other)) == page
+    assert height_views(other).shaded_height["png"] not in page
