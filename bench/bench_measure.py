@@ -33,25 +33,17 @@ from skintopo.synth import Effects, default_settings, make_surface, preset_spec,
 RUNS = 3
 
 
-def timings(run):
-    """Best and median of RUNS calls of ``run`` (seconds)."""
-    times = []
-    for _ in range(RUNS):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return round(min(times), 2), round(float(np.median(times)), 2)
-
-
-def interleaved_timings(first, second, runs=2 * RUNS - 1):
-    """:func:`timings` of two calls taken in turn, ``runs`` of each: (best, median) of each."""
-    times = ([], [])
+def timings(*calls, runs=RUNS):
+    """(best, median) in seconds of each of ``calls``, ``runs`` calls of each taken in turn
+    (so that the machine's drift falls on all alike); one call: its (best, median)."""
+    times = [[] for _ in calls]
     for _ in range(runs):
-        for run, kept in zip((first, second), times):
+        for call, kept in zip(calls, times):
             start = time.perf_counter()
-            run()
+            call()
             kept.append(time.perf_counter() - start)
-    return tuple((round(min(t), 2), round(float(np.median(t)), 2)) for t in times)
+    results = [(round(min(t), 2), round(float(np.median(t)), 2)) for t in times]
+    return results[0] if len(calls) == 1 else results
 
 
 def measure_process(source, out):
@@ -78,8 +70,8 @@ def main_bench():
         Surface(z.copy(), 20.0, 20.0).roughness_parameters()  # warm-up
         # interleaved, so that the machine's drift (20-30% within minutes on the shared 2-core
         # machine) falls on both alike
-        height_process, surfalize = interleaved_timings(lambda: measure_process(folder / "h.x3p", folder / "out_h"),
-                                                        lambda: Surface(z.copy(), 20.0, 20.0).roughness_parameters())
+        height_process, surfalize = timings(lambda: measure_process(folder / "h.x3p", folder / "out_h"),
+                                            lambda: Surface(z.copy(), 20.0, 20.0).roughness_parameters(), runs=2 * RUNS - 1)
     result = {
         "acquisition": {"benchmark": "skintopo measure, 1000x1000 acquisition, 16 images (4 lights x red/green/blue/white), report included",
                         "seconds_in_process": in_process[0], "median_seconds_in_process": in_process[1],

@@ -28,6 +28,7 @@ from markupsafe import Markup
 DISPLAY_PIXELS = 600
 MESH_CELLS = 200  # a side of the 3-D view's mesh (WebGL 1 indexes at most 65536 vertices)
 PROFILE_POINTS = 400
+REPORT_TEMPLATE = "report.html"  # in skintopo/templates, as the other pages
 
 
 @functools.cache
@@ -284,7 +285,7 @@ def height_views(height) -> HeightViews:
     too (jinja2 keeps it), so that a caller who makes the views while other work runs (``skintopo
     measure`` does, while the wrinkles are measured: :func:`skintopo.pipeline.measure_height`)
     leaves :func:`build_report` only what needs the measures."""
-    _environment().get_template("report.html")
+    _environment().get_template(REPORT_TEMPLATE)
     z, step = _decimate(np.asarray(height.z, float), MESH_CELLS)
     profile_z, profile_step = _decimate(np.asarray(height.z, float), PROFILE_POINTS)
     finite_z = z[np.isfinite(z)]
@@ -348,7 +349,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         # JSON inside <script type=application/json> is raw text: escape '<' so no '</script>' can close it.
         "payload": Markup(payload.replace("<", "\\u003c")),
     }
-    return render_page("report.html", context, style="report.css", script="report.js")
+    return render_page(REPORT_TEMPLATE, context, style="report.css", script="report.js")
 
 
 def _setting_rows(settings, prefix=""):

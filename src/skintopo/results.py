@@ -92,9 +92,8 @@ def write_measurement(folder, measurement, *, title, command="measure", evaluati
     :func:`skintopo.pipeline.measure_height`)."""
     from skintopo.report import build_report
 
-    early = early if early is not None and early.height is measurement.height and early.folder == Path(folder) else None
-
     folder = Path(folder)
+    early = early if early is not None and early.height is measurement.height and early.folder == folder else None
     rows = measurement.parameter_rows()
     settings = measurement_settings(measurement)
     colour = None if measurement.chromophores is None else measurement.chromophores.statistics(measurement.region_masks())
