@@ -29,6 +29,7 @@ DISPLAY_PIXELS = 600
 MESH_CELLS = 200  # a side of the 3-D view's mesh (WebGL 1 indexes at most 65536 vertices)
 PROFILE_POINTS = 400
 REPORT_TEMPLATE = "report.html"  # in skintopo/templates, as the other pages
+REPORT_TEMPLATE_PARTS = ("base.html", "macros.html")  # what it extends and imports (loaded when it is rendered)
 
 
 @functools.cache
@@ -50,8 +51,13 @@ def figure_png(figure, dpi=100):
     return base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
+def _decimation_step(shape, limit):
+    """The step that leaves at most ``limit`` pixels along each side of an image of ``shape``."""
+    return max(1, int(np.ceil(max(shape[:2]) / limit)))
+
+
 def _decimate(array, limit):
-    step = max(1, int(np.ceil(max(array.shape[:2]) / limit)))
+    step = _decimation_step(array.shape, limit)
     return array[::step, ::step], step
 
 
@@ -167,20 +173,28 @@ def albedo_picture(albedo, height):
     return value_picture(albedo, height, "albedo", "albedo (relative)")
 
 
-def pore_overlay_picture(height, pores):
-    """The pores over the grey shaded height: each pore's opening tinted cyan (50%)."""
+def grey_relief(height):
+    """The grey shaded height that the overlays are drawn on, at display size: :func:`hillshade`
+    of the height with its missing points at the median height, as RGB."""
     z, step = _decimate(_filled(np.where(height.mask, height.z, np.nan))[0], DISPLAY_PIXELS)
-    rgb = np.repeat(hillshade(z, (height.spacing[0] * step, height.spacing[1] * step))[..., None], 3, axis=-1)
+    return np.repeat(hillshade(z, (height.spacing[0] * step, height.spacing[1] * step))[..., None], 3, axis=-1)
+
+
+def pore_overlay_picture(height, pores, relief=None):
+    """The pores over the grey shaded height (``relief``: :func:`grey_relief` of it, when
+    already made): each pore's opening tinted cyan (50%)."""
+    rgb = grey_relief(height) if relief is None else relief.copy()
     inside = _decimate(pores.labels, DISPLAY_PIXELS)[0] > 0
     rgb[inside] = 0.5 * rgb[inside] + 0.5 * np.array([0.0, 0.85, 0.95])
     return _map_picture(f"{len(pores.pores)} pore(s)", rgb, height)
 
 
-def wrinkle_overlay_rgb(height, measures):
-    """The wrinkles over the grey shaded height, at display size: each wrinkle's half-depth
-    region tinted in its colour (35%), its centre line in red. Returns (RGB, step)."""
-    z, step = _decimate(_filled(np.where(height.mask, height.z, np.nan))[0], DISPLAY_PIXELS)
-    rgb = np.repeat(hillshade(z, (height.spacing[0] * step, height.spacing[1] * step))[..., None], 3, axis=-1)
+def wrinkle_overlay_rgb(height, measures, relief=None):
+    """The wrinkles over the grey shaded height (``relief``: :func:`grey_relief` of it, when
+    already made), at display size: each wrinkle's half-depth region tinted in its colour
+    (35%), its centre line in red. Returns (RGB, step)."""
+    rgb = grey_relief(height) if relief is None else relief.copy()
+    step = _decimation_step(height.shape, DISPLAY_PIXELS)
     labels = _decimate(measures.labels, DISPLAY_PIXELS)[0]
     inside = labels > 0
     rgb[inside] = 0.65 * rgb[inside] + 0.35 * _LABEL_COLOURS[(labels[inside] - 1) % len(_LABEL_COLOURS)]
@@ -189,9 +203,9 @@ def wrinkle_overlay_rgb(height, measures):
     return rgb, step
 
 
-def wrinkle_overlay_picture(height, measures):
+def wrinkle_overlay_picture(height, measures, relief=None):
     """:func:`wrinkle_overlay_rgb` with each wrinkle's id at its centroid."""
-    rgb, _ = wrinkle_overlay_rgb(height, measures)
+    rgb, _ = wrinkle_overlay_rgb(height, measures, relief)
     rows, columns = height.shape
     field = (columns * height.spacing[1] / 1000, rows * height.spacing[0] / 1000)
     labels = [(100 * w.centroid_x_mm / field[0], 100 * w.centroid_y_mm / field[1], str(w.id)) for w in measures.wrinkles]
@@ -271,21 +285,24 @@ def _float32_base64(values):
 @dataclass(frozen=True)
 class HeightViews:
     """The parts of the report that need the height map alone (:func:`height_views`):
-    ``shaded_height`` (:func:`shaded_height_picture`) and ``viewer``, the 3-D view's mesh and
-    the profile viewer's grid (float32 base64), the 3-D view's height exaggeration and the
-    median height."""
+    ``shaded_height`` (:func:`shaded_height_picture`), ``relief`` (:func:`grey_relief`, what
+    the wrinkle and pore overlays are drawn on) and ``viewer``, the 3-D view's mesh and the
+    profile viewer's grid (float32 base64), the 3-D view's height exaggeration and the median
+    height."""
 
     height: object
     shaded_height: dict
+    relief: np.ndarray
     viewer: dict
 
 
 def height_views(height) -> HeightViews:
-    """The :class:`HeightViews` of ``height``; the page template is loaded and compiled here
-    too (jinja2 keeps it), so that a caller who makes the views while other work runs (``skintopo
+    """The :class:`HeightViews` of ``height``; the page template and its parts are loaded and
+    compiled here too (jinja2 keeps them), so that a caller who makes the views while other work runs (``skintopo
     measure`` does, while the wrinkles are measured: :func:`skintopo.pipeline.measure_height`)
     leaves :func:`build_report` only what needs the measures."""
-    _environment().get_template(REPORT_TEMPLATE)
+    for template in (REPORT_TEMPLATE, *REPORT_TEMPLATE_PARTS):
+        _environment().get_template(template)
     z, step = _decimate(np.asarray(height.z, float), MESH_CELLS)
     profile_z, profile_step = _decimate(np.asarray(height.z, float), PROFILE_POINTS)
     finite_z = z[np.isfinite(z)]
@@ -297,7 +314,7 @@ def height_views(height) -> HeightViews:
         "mesh": {"z": _float32_base64(z), "shape": z.shape, "dx": height.spacing[1] * step, "dy": height.spacing[0] * step},
         "exaggeration": 0.25 * size / max(span, 1e-9), "mid": float(np.median(finite_z)) if finite_z.size else 0.0,
     }
-    return HeightViews(height, shaded_height_picture(height), viewer)
+    return HeightViews(height, shaded_height_picture(height), grey_relief(height), viewer)
 
 
 def build_report(*, title, height, albedo=None, parameters=(), regions=None, fractal_results=(), wrinkles=None, evaluations=None,
@@ -324,7 +341,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "title": title, "field_mm": field_mm, "shape": height.shape, "pixel_um": height.spacing[1],
         "missing_percent": 100 * (1 - height.mask.mean()), "surface_images": surface_images, "exaggeration": exaggeration,
         "wrinkles": wrinkles.totals if wrinkles is not None else None,
-        "wrinkle_overlay": wrinkle_overlay_picture(height, wrinkles) if wrinkles is not None else None,
+        "wrinkle_overlay": wrinkle_overlay_picture(height, wrinkles, views.relief) if wrinkles is not None else None,
         "wrinkle_rows": [[w.id, w.length_mm, w.orientation_deg, w.mean_depth_um, w.max_depth_um, w.mean_width_mm, w.cross_section_mm2,
                           w.volume_mm3, w.severity] for w in (wrinkles.wrinkles if wrinkles is not None else ())],
         "parameter_rows": [[p.name, p.value, p.unit, p.reference, parameter_note(p)] for p in parameters],
@@ -336,7 +353,7 @@ def build_report(*, title, height, albedo=None, parameters=(), regions=None, fra
         "cross_sections": cross_sections,
         "pores": pores.totals if pores is not None else None,
         "pore_edge_um": pores.parameters["edge_um"] if pores is not None else None,
-        "pore_overlay": pore_overlay_picture(height, pores) if pores is not None else None,
+        "pore_overlay": pore_overlay_picture(height, pores, views.relief) if pores is not None else None,
         "pore_rows": [[p.id, p.diameter_um, p.area_mm2, p.depth_um, p.mean_depth_um, p.volume_mm3, p.roundness]
                       for p in (pores.pores if pores is not None else ())],
         "colour_maps": [value_picture(chromophores.melanin, height, "melanin index", "melanin (OD at 523 nm)", browns),

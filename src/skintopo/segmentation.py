@@ -54,6 +54,7 @@ full extent of the kept wrinkles (their watershed basins, walls included).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -165,18 +166,26 @@ def segment_wrinkles(
     # field's edges the Gaussian regression cannot follow curvature, and its residual there
     # would look like valleys.
     levelled = level(height, order=2)
-    # the lambda_c mean line on block means (module notes, step 1): smooth on their scale
-    band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um, long_samples_per_sigma=LONG_WAVE_SAMPLES_PER_SIGMA)
-    valid = band.mask
-    depth = np.where(valid, -band.z, 0.0)
-    del band  # its heights are the depth's: freed early (8 bytes a pixel)
-    in_basin = _valley_basins(depth, valid, min_depth_um)
+    valid = levelled.mask
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # The straight valleys' closings need only the levelled height: on a thread of their
+        # own beside the band-pass and the watershed (OpenCV's and SciPy's filters release
+        # the GIL; the measure runs this beside the texture, so it is its critical path).
+        straight_valleys = (pool.submit(straight_valley_depth, levelled, valid, straight_valley_um, cutoff_um, return_direction=True)
+                            if straight_valley_um else None)
+        # the lambda_c mean line on block means (module notes, step 1): smooth on their scale
+        band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um, long_samples_per_sigma=LONG_WAVE_SAMPLES_PER_SIGMA)
+        depth = np.where(valid, -band.z, 0.0)
+        del band  # its heights are the depth's: freed early (8 bytes a pixel)
+        in_basin = _valley_basins(depth, valid, min_depth_um)
+        straight_and_direction = None if straight_valleys is None else straight_valleys.result()
     regions = in_basin.copy()
     pixel = min(height.spacing)
     window = max(3, int(round(width_window_um / pixel)) | 1)
     straight = straight_direction = None
     if straight_valley_um:
-        straight, direction = straight_valley_depth(levelled, valid, straight_valley_um, cutoff_um, return_direction=True)
+        straight, direction = straight_and_direction
+        del straight_and_direction
         straight = np.where(valid, straight, 0.0)
         straight_direction = np.where(straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um, direction, np.float32(np.nan))
         del direction

@@ -776,9 +776,11 @@ def wrinkle_properties(height: HeightMap, segmentation: WrinkleSegmentation, **s
     field = wrinkle_field(height, segmentation, settings)
     regions = sorted(regionprops(segmentation.labels), key=lambda r: (round(r.centroid[0] / 4), r.centroid[1]))
     wrinkles = [WrinkleProperties(region, field) for region in regions]
-    # each wrinkle's frame and depth on one of two threads (NumPy and SciPy release the GIL);
-    # every wrinkle is measured whole by one thread, in the same order of operations as alone
-    with ThreadPoolExecutor(max_workers=2) as pool:
+    # each wrinkle's frame and depth on one of four threads (NumPy and SciPy release the GIL);
+    # every wrinkle is measured whole by one thread, in the same order of operations as alone.
+    # Four on two cores: a wrinkle is the unit of work, and with two threads the last of an odd
+    # few ran alone on one core (a 1024^2 forehead's 3 wrinkles: 0.305 -> 0.260 s, medians of 4)
+    with ThreadPoolExecutor(max_workers=4) as pool:
         measurable = [w for w, keep in zip(wrinkles, pool.map(lambda w: w.measurable, wrinkles)) if keep]
     return [w.numbered(number) for number, w in enumerate(measurable, 1)]
 
