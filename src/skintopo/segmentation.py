@@ -169,23 +169,24 @@ def segment_wrinkles(
     valid = levelled.mask
     with ThreadPoolExecutor(max_workers=1) as pool:
         # The straight valleys' closings need only the levelled height: on a thread of their
-        # own beside the band-pass and the watershed (OpenCV's and SciPy's filters release
-        # the GIL; the measure runs this beside the texture, so it is its critical path).
-        straight_valleys = (pool.submit(straight_valley_depth, levelled, valid, straight_valley_um, cutoff_um, return_direction=True)
-                            if straight_valley_um else None)
+        # own beside the band-pass and the watershed (OpenCV's and SciPy's filters release the
+        # GIL; the measure runs all this beside the texture, so it is its critical path). They
+        # come back on their grid of block means, repeated onto the pixels once the band-pass
+        # is freed (20 megapixels: 12 bytes a pixel not held beside it).
+        straight_valleys = pool.submit(straight_valley_depth, levelled, valid, straight_valley_um, cutoff_um) if straight_valley_um else None
         # the lambda_c mean line on block means (module notes, step 1): smooth on their scale
         band = gaussian_bandpass(levelled, short_cutoff_um, cutoff_um, long_samples_per_sigma=LONG_WAVE_SAMPLES_PER_SIGMA)
         depth = np.where(valid, -band.z, 0.0)
         del band  # its heights are the depth's: freed early (8 bytes a pixel)
         in_basin = _valley_basins(depth, valid, min_depth_um)
-        straight_and_direction = None if straight_valleys is None else straight_valleys.result()
+        straight_blocks = None if straight_valleys is None else straight_valleys.result()
     regions = in_basin.copy()
     pixel = min(height.spacing)
     window = max(3, int(round(width_window_um / pixel)) | 1)
     straight = straight_direction = None
     if straight_valley_um:
-        straight, direction = straight_and_direction
-        del straight_and_direction
+        factor, straight, direction = straight_blocks
+        straight, direction = (expanded_blocks(image, levelled.shape, factor) for image in (straight, direction))  # 8 + 4 bytes a pixel
         straight = np.where(valid, straight, 0.0)
         straight_direction = np.where(straight >= STRAIGHT_VALLEY_CONFIRMATION * min_depth_um, direction, np.float32(np.nan))
         del direction
@@ -309,25 +310,23 @@ def _valley_basins(depth, valid, min_depth_um):
     return (flooded >= 1) & (flooded <= n_seeds)
 
 
-def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um, return_direction=False):
+def straight_valley_depth(levelled: HeightMap, valid, length_um, cutoff_um):
     """Depth of the valleys that run straight for ``length_um`` in some direction: the
     ``levelled`` height (least-squares quadratic form removed) closed with a level segment of that length at each of
     ``STRAIGHT_VALLEY_DIRECTIONS`` angles, the lowest of the closings kept (a valley survives
-    the closing laid along it), below its Gaussian regression at ``cutoff_um``. Furrows of
-    the microrelief (polygons of 0.1-1 mm) are filled by the closings across them and by the
-    one along them where they turn. Computed on block means of at most
-    ``STRAIGHT_VALLEY_PIXEL_UM`` (the cost grows as the segment's length in pixels times the
-    number of pixels) and repeated back onto the pixels. With ``return_direction``, also the
-    direction of the closing that kept each point lowest (degrees counter-clockwise from +x, y
-    up): the way its valley runs."""
+    the closing laid along it), below its Gaussian regression at ``cutoff_um``; and the
+    direction of the closing that kept each point lowest (degrees counter-clockwise from +x,
+    y up): the way its valley runs. Furrows of the microrelief (polygons of 0.1-1 mm) are
+    filled by the closings across them and by the one along them where they turn. Computed
+    on block means of at most ``STRAIGHT_VALLEY_PIXEL_UM`` (the cost grows as the segment's
+    length in pixels times the number of pixels): returns (block factor, depth, direction),
+    both images of blocks (:func:`skintopo.filters.expanded_blocks` repeats them back onto
+    the pixels)."""
     factor = max(1, int(STRAIGHT_VALLEY_PIXEL_UM // max(levelled.spacing)))
     z, coarse_valid, spacing = block_means_of_valid(levelled.z, valid, levelled.spacing, factor)
-    extremes = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid, return_lowest_index=return_direction)
-    closed = extremes[0]
-    depth = expanded_blocks(areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed, levelled.shape, factor)
-    if not return_direction:
-        return depth
-    return depth, expanded_blocks(np.asarray(STRAIGHT_VALLEY_DIRECTIONS, np.float32)[extremes[2]], levelled.shape, factor)  # 4 bytes a pixel
+    closed, _, lowest = line_segment_closing_extremes(z, spacing, length_um, STRAIGHT_VALLEY_DIRECTIONS, coarse_valid, return_lowest_index=True)
+    depth = areal_gaussian_filter(closed, spacing, cutoff_um, coarse_valid) - closed
+    return factor, depth, np.asarray(STRAIGHT_VALLEY_DIRECTIONS, np.float32)[lowest]
 
 
 def _straight_valleys(depth, levelled, valid, taken, min_depth_um, min_length_um, window):
