@@ -63,11 +63,10 @@ def main():
         synth = run("synth", "-o", acquisition, "--size", size, "--no-interreflection", "-q")
         if arguments.camera:
             camera_frame(acquisition, folder / "frame")
-            acquisition, shape, images, name = folder / "frame", f"{CAMERA[0]} x {CAMERA[1]}", 12, "scale-{}x{}".format(*CAMERA)
+            acquisition, rows, images, name = folder / "frame", CAMERA[1], 12, "scale-{}x{}".format(*CAMERA)
         else:
-            shape, images, name = f"{size} x {size}", 16, "scale" if size == 4472 else f"scale-{size}"
-        pixels = size * (CAMERA[1] if arguments.camera else size)
-        result = {"benchmark": f"{shape} acquisition ({pixels / 1e6:.1f} megapixels, {images} images, forehead-moderate, "
+            rows, images, name = size, 16, "scale" if size == 4472 else f"scale-{size}"
+        result = {"benchmark": f"{size} x {rows} acquisition ({size * rows / 1e6:.1f} megapixels, {images} images, forehead-moderate, "
                                "no interreflection), each command a new process with its default options",
                   "target_peak_gib": 8, "synth": synth}
         for command in ("reconstruct", "correct", "measure"):

@@ -264,7 +264,7 @@ def crop_region(height: HeightMap, box, name):
 
 # Memory each command needs per pixel beyond the acquisition's float32 images (bytes), for
 # the guard of load_acquisition: peaks measured on a 20-megapixel acquisition (4472 x 4472,
-# 16 images, default options; /usr/bin/time; bench/results/scale.json of 2026-12-06):
+# 16 images, default options; each process's own peak, bench/results/scale.json of 2026-12-06):
 # reconstruct 5.20 GiB, correct 7.44 GiB, measure 6.23 GiB (report included), i.e. 199, 319
 # and 254 bytes a pixel beyond the images and a 0.3 GiB baseline, rounded up.
 PROCESSING_BYTES_PER_PIXEL = {"reconstruct": 210, "correct": 330, "measure": 260}
