@@ -425,100 +425,6 @@ def _lobe_fit(intensity, allowed, weight, lights, g, readmit, roughness=None):
     return np.where(kept, solution, g), np.where(kept, weight, initial_weight), part, roughness
 
 
-POOLED_LOBE_MAX_LIGHTS = SPECULAR_LOBE_MIN_LIGHTS - 1  # 4 or 5 lights: one scale for the field (module notes)
-POOLED_LOBE_ITERATIONS = 12  # fixed-point passes normals -> lobe -> normals (bench_shiny, 4 lights, 10x coat, m 0.4: 8 -> 2.7, 12 -> 2.6 deg)
-POOLED_LOBE_STEP = 0.5  # each pass moves g half way to its new fit (a full step oscillated on a broad 10x sheen: 4.2 deg instead of 2.8)
-POOLED_LOBE_SAMPLE_PIXELS = 16384  # m and S are chosen on at most about this many pixels (every k-th)
-POOLED_LOBE_MAX_UNEXPLAINED = 0.5  # the lobe is kept only where it explains at least half the Lambertian residual: a sharp
-# highlight left in the fit (4 lights, 10x coat, m 0.1-0.2) is explained by no one lobe for the field (864 of 867 left), a
-# sheen or a usual coat is (0.11 of 31, 0.033 of 0.48); a lobe fitted to the former bent the normals (7.9 -> 9.4 deg)
-
-
-def _pooled_lobe_iterations(intensity, usable, lights, g, roughness, scale=None):
-    """Fixed-point passes of I_i = g . l_i + S phi_i(n), n = g / |g|, with one S for all the
-    pixels: the lobe phi of the current normals, then g = A^-1 L^T W (I - S phi) (A = L^T W L,
-    W the observations used), moved ``POOLED_LOBE_STEP`` of the way. With ``scale`` None, S
-    is re-estimated at each pass from the pixels with a redundant observation (4 or more):
-    S = sum r . phi / sum |P phi|^2, P phi the part of the lobe no Lambertian g explains and r
-    the Lambertian fit's residual (the least-squares S of all those pixels together), and the
-    pass of lowest total residual over them is returned as (g, S, phi, total). With ``scale``
-    given, each pixel keeps its own pass of lowest residual, returned as (g, S, phi, residual)."""
-    w = usable.astype(np.float32)
-    normal_matrix = (np.stack([lights[:, i] * lights[:, j] for i, j in _UPPER]) @ w).astype(np.float64)
-    lambertian = g.astype(np.float64)
-    redundant = np.add.reduce(usable, axis=0) > 3
-    current, kept = lambertian, None
-    for _ in range(POOLED_LOBE_ITERATIONS):
-        phi = SpecularLobe((current / np.linalg.norm(current, axis=0)).T[None], lights)(roughness)[:, 0]
-        weighted_phi = w * phi
-        cross = (lights.T @ weighted_phi).astype(np.float64)
-        along, _ = solve_symmetric_3x3(normal_matrix, cross)
-        if scale is None:
-            with np.errstate(invalid="ignore"):
-                remainder = np.add.reduce(weighted_phi * phi, axis=0, dtype=np.float64) - (cross * along).sum(axis=0)
-                numerator = np.add.reduce(weighted_phi * intensity, axis=0, dtype=np.float64) - (cross * lambertian).sum(axis=0)
-            power = np.nansum(remainder[redundant])
-            pass_scale = max(float(np.nansum(numerator[redundant]) / power), 0.0) if power > 0 else 0.0
-        else:
-            pass_scale = scale
-        residual = _sum_of_squares(w * (intensity - lights @ current.astype(np.float32) - np.float32(pass_scale) * phi))
-        if scale is None:
-            total = float(residual[redundant].sum())
-            if kept is None or total < kept[3]:
-                kept = (current, pass_scale, phi, total)
-        elif kept is None:
-            kept = (current, scale, phi, residual)
-        else:
-            with np.errstate(invalid="ignore"):
-                better = residual < kept[3]
-            kept = (np.where(better, current, kept[0]), scale, np.where(better, phi, kept[2]), np.where(better, residual, kept[3]))
-        with np.errstate(invalid="ignore"):
-            current = current + POOLED_LOBE_STEP * (lambertian - pass_scale * along - current)
-    return kept
-
-
-def _fit_pooled_lobe(intensity, usable, lights, g):
-    """Normals with a specular lobe under 4 or 5 lights: I_i = g . l_i + S phi_i (as
-    :func:`_fit_specular_lobe`), but one S and one m for the field (module notes).
-
-    m (of ``LOBE_ROUGHNESS_GRID``) and S are chosen on at most about
-    ``POOLED_LOBE_SAMPLE_PIXELS`` pixels: the pair of lowest total residual
-    (:func:`_pooled_lobe_iterations`). No lobe is fitted when none explains the sample better
-    than the Lambertian fit (S = 0: a matte surface keeps its normals exactly). All pixels
-    with 3 usable observations or more are then fitted with that S and m, in blocks of
-    ``LOBE_BLOCK_PIXELS``; a pixel whose lobe would be implausible (:func:`_plausible_lobe`)
-    keeps its Lambertian fit.
-
-    Hand-written for the reason given at :func:`_fit_specular_lobe`. Returns g (3, P), the
-    specular part (m, P) and m (None when no lobe was fitted)."""
-    specular = np.zeros(intensity.shape, dtype=np.float32)
-    pixels = np.flatnonzero(np.isfinite(g).all(axis=0) & (np.add.reduce(usable, axis=0) >= 3))
-    if pixels.size == 0:
-        return g, specular, None
-    lights32 = lights.astype(np.float32)
-    sample = pixels[:: max(1, pixels.size // POOLED_LOBE_SAMPLE_PIXELS)]
-    observed, used, start = intensity[:, sample], usable[:, sample], g[:, sample]
-    lambertian = _sum_of_squares(used * (observed - lights32 @ start))
-    unexplained = float(lambertian[np.add.reduce(used, axis=0) > 3].sum())
-    best = (unexplained, 0.0, None)
-    for candidate in LOBE_ROUGHNESS_GRID:
-        _, scale, _, total = _pooled_lobe_iterations(observed, used, lights32, start, candidate)
-        if scale > 0 and total < best[0]:
-            best = (total, scale, candidate)
-    total, scale, roughness = best
-    if roughness is None or total > POOLED_LOBE_MAX_UNEXPLAINED * unexplained:
-        return g, specular, None
-    g = g.copy()
-    for start in range(0, pixels.size, LOBE_BLOCK_PIXELS):
-        block = pixels[start : start + LOBE_BLOCK_PIXELS]
-        solution, _, phi, _ = _pooled_lobe_iterations(intensity[:, block], usable[:, block], lights32, g[:, block], roughness, scale)
-        w = usable[:, block].astype(np.float32)
-        kept = np.isfinite(solution).all(axis=0) & _plausible_lobe(np.float32(scale), phi, intensity[:, block], w)
-        g[:, block] = np.where(kept, solution, g[:, block])
-        specular[:, block] = np.where(kept, np.float32(scale) * phi * w, np.float32(0))
-    return g, specular, float(roughness)
-
-
 def _least_trimmed_choice(observed, candidates, lights, robust, alternative):
     """Per pixel, the fit (g, observations used, specular part) of the two, ``robust`` (the
     lobe fitted to the observations the robust solver kept) or ``alternative`` (the lobe
@@ -657,8 +563,6 @@ def photometric_stereo(images, lights, *, mask=None, shadow_fraction=DEFAULT_SHA
                                                                            readmit=False)[:3])
         intensity = np.where(usable, observed, np.float32(0))
         count = np.add.reduce(usable, axis=0, dtype=np.int16)
-    elif specular_lobe and 4 <= m <= POOLED_LOBE_MAX_LIGHTS:
-        g, specular, roughness = _fit_pooled_lobe(intensity, usable, lights, g)
 
     albedo = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
     with np.errstate(invalid="ignore"):
