@@ -21,10 +21,12 @@ import compileall
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
+import scipy.fft
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
 import skintopo
@@ -53,10 +55,6 @@ def two_core_speedup():
     FFTs of 2048^2, single-threaded) over the time of one doing half of it, ideally 2. skintopo's
     measure runs on two threads and surfalize's call on one, so the ratio depends on it (on the
     slow evening of 2026-12-06 each of two threads ran up to 1.6x slower than one alone)."""
-    import threading
-
-    import scipy.fft
-
     image = np.random.default_rng(0).random((2048, 2048))
 
     def work():
