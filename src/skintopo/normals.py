@@ -233,17 +233,18 @@ LOBE_IDENTIFIABLE = 1e-3  # S is fitted only where this share of the lobe's powe
 LOBE_SAMPLE_PIXELS = 65536  # the roughness is chosen on at most about this many pixels (every k-th)
 
 
-def _half_vectors(lights):
-    """Unit half vectors h_i of each light l_i and the view v = (0, 0, 1), single precision."""
+def _half_vectors(lights, view=None):
+    """Unit half vectors h_i of each light l_i and the view v (default (0, 0, 1)), single
+    precision; ``lights`` (m, 3), or (m, rows, columns, 3) with ``view`` (rows, columns, 3)."""
     lights = np.asarray(lights, dtype=np.float32)
-    view = np.array([0.0, 0.0, 1.0], dtype=np.float32)
-    return (lights + view) / np.linalg.norm(lights + view, axis=1, keepdims=True)
+    view = np.array([0.0, 0.0, 1.0], dtype=np.float32) if view is None else np.asarray(view, dtype=np.float32)
+    total = lights + view
+    return total / np.linalg.norm(total, axis=-1, keepdims=True)
 
 
 class SpecularLobe:
-    """Microfacet lobe D(n . h; m) / (n . v) per light, v = (0, 0, 1), zero where n . l <= 0
-    or where ``visible`` is False; call it with a roughness m for the (lights, rows, columns)
-    stack.
+    """Microfacet lobe D(n . h; m) / (n . v) per light, zero where n . l <= 0 or where
+    ``visible`` is False; call it with a roughness m for the (lights, rows, columns) stack.
 
     D = exp(-tan^2 alpha / m^2) / (m^2 cos^4 alpha) (Beckmann, without its 1/pi, which the
     fitted scale takes), alpha the angle between n and the half vector h of l and v. The
@@ -251,15 +252,22 @@ class SpecularLobe:
     search over m costs one exponential per candidate. Single precision (1 - cos^2 near the
     peak keeps about 1e-7). Used by the photometric-stereo lobe fit and by
     :mod:`skintopo.physics`.
+
+    ``lights``: unit directions (m, 3) with the orthographic view v = (0, 0, 1), or per pixel
+    (m, rows, columns, 3) with ``view`` (rows, columns, 3) per pixel and ``strength``
+    (m, rows, columns), each light's irradiance there (near LEDs, a perspective camera: the
+    lobe is E_i D / (n . v)).
     """
 
-    def __init__(self, normals, lights, visible=True):
+    def __init__(self, normals, lights, visible=True, view=None, strength=1.0):
         normals, lights = np.asarray(normals, dtype=np.float32), np.asarray(lights, dtype=np.float32)
-        halves = _half_vectors(lights)
-        cosine = np.clip(np.einsum("rck,mk->mrc", normals, halves), 1e-6, 1.0)
+        halves = _half_vectors(lights, view)
+        product = "rck,mk->mrc" if lights.ndim == 2 else "rck,mrck->mrc"
+        cosine = np.clip(np.einsum(product, normals, halves), 1e-6, 1.0)
         self.tan2 = (1 - cosine**2) / cosine**2
-        lit = (np.einsum("rck,mk->mrc", normals, lights) > 0) & visible
-        self.factor = np.where(lit, 1.0 / (cosine**4 * np.clip(normals[..., 2], 0.2, 1.0)), 0.0)
+        lit = (np.einsum(product, normals, lights) > 0) & visible
+        facing = normals[..., 2] if view is None else np.einsum("rck,rck->rc", normals, np.asarray(view, dtype=np.float32))
+        self.factor = np.where(lit, np.asarray(strength, dtype=np.float32) / (cosine**4 * np.clip(facing, 0.2, 1.0)), 0.0)
 
     def __call__(self, roughness):
         return np.exp(self.tan2 * np.float32(-1.0 / roughness**2)) * (self.factor / np.float32(roughness**2))

@@ -91,7 +91,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft
+import scipy.ndimage
 
+from skintopo.device import Device
 from skintopo.errors import SkinTopoError
 from skintopo.filters import bilinear_resize, block_mean, polynomial_form
 from skintopo.height import DEFAULT_INTEGRATOR, fill_from_nearest, height_normals, integrate_normals
@@ -400,6 +402,8 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
         The photometric-stereo solver of step 4 (:func:`skintopo.normals.photometric_stereo`):
         ``"robust"`` leaves out an observation that a residual highlight makes clearly brighter
         than the other lights predict.
+    integrator : str
+        How normals become heights (:func:`skintopo.height.integrate_normals`).
 
     Returns
     -------
@@ -409,17 +413,177 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     spacing = pixel_spacing(spacing)
     shape = images["red"].shape[1:]
     mask = np.ones(shape, bool) if mask is None else np.asarray(mask, dtype=bool)
-    scaled_normals, albedo_level, plain = {}, {}, []
+    scaled_normals, plain = {}, []
     for band in REQUIRED_BANDS:
         stereo = photometric_stereo(images[band], lights, mask=mask)
         plain.append(integrate_normals(stereo.normals, spacing, mask=mask & stereo.valid, method=integrator))
         scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
-        albedo_level[band] = float(np.nanmedian(stereo.albedo))
-        images[band] = images[band].astype(np.float32)  # as the Fourier passes
-        missing = ~(np.isfinite(images[band]) & mask)
-        if missing.any():
-            light, row, column = np.nonzero(missing)
-            images[band][missing] = np.einsum("pk,pk->p", np.nan_to_num(scaled_normals[band][row, column]), lights[light])
+    return _physics_passes(images, _DistantLights(lights, solver), spacing, mask, scaled_normals, plain, scattering=scattering,
+                           kernels=kernels, interreflection=interreflection, highlights=highlights, iterations=iterations,
+                           tolerance=tolerance, radius_um=radius_um, integrator=integrator, progress=progress)
+
+
+def near_field_physics_height(images, device: Device, *, mask=None, scattering=True, kernels=None, interreflection=True, highlights=True,
+                              iterations=DEFAULT_ITERATIONS, tolerance=DEFAULT_TOLERANCE, radius_um=DEFAULT_RADIUS_UM,
+                              integrator=DEFAULT_INTEGRATOR, progress=iter) -> PhysicsResult:
+    """The physics height (module notes) of a capture through a device: near LEDs and a
+    perspective camera (:mod:`skintopo.device`).
+
+    Each band is first solved by near-field photometric stereo
+    (:func:`skintopo.nearfield.near_field_photometric_stereo`; green and blue started from
+    red), which fixes the skin-plane grid (:func:`skintopo.nearfield.surface_grid`), the
+    depth scale and where each node lies on the image. The images, divided by each LED's
+    intensity in their band, are read at those places (bilinear; the bands' own heights move
+    a node by hundredths of a pixel) and the passes of :func:`physics_height` run on that
+    grid, an orthographic height field, with each node's own light vectors
+    s_i(P), P = (x, y, -D + h), in step 4's least squares (that of
+    :func:`skintopo.nearfield.per_pixel_photometric_stereo`, its shadow rule included), in
+    the shading of the residual and in the highlight lobe (with each node's view toward the
+    centre of projection). Cast shadows are marched along the directions from the field centre
+    to the LEDs (the simulator's approximation); interreflection and scattering are
+    operators on the grid and do not depend on the lights.
+
+    Parameters
+    ----------
+    images : dict band -> ndarray (m, rows, columns)
+        Red, green and blue camera images, one per LED in the device's LED order, linear,
+        flat-fielded for the camera only; NaN where saturated.
+    device : Device
+    mask : ndarray of bool, optional
+        Camera pixels of skin.
+
+    The other parameters are those of :func:`physics_height` (step 4 uses least squares:
+    the near-field solver has no robust variant). Returns a :class:`PhysicsResult` whose
+    height and albedo are on the skin-plane grid.
+    """
+    from skintopo.nearfield import near_field_photometric_stereo, surface_grid  # here: Numba takes 0.3 s to import
+
+    missing = [band for band in REQUIRED_BANDS if band not in images]
+    if missing:
+        raise SkinTopoError(f"the physics height needs red, green and blue images; missing {missing} (have {sorted(images)})")
+    solved, start = {}, None
+    for band in REQUIRED_BANDS:
+        solved[band] = start = near_field_photometric_stereo(images[band], device, band, mask=mask, integrator=integrator, start=start)
+    plain = [solved[band].height for band in REQUIRED_BANDS]
+    grid_mask = np.logical_and.reduce([height.mask for height in plain])
+    scaled_normals = {}
+    for band in REQUIRED_BANDS:
+        stereo = solved[band].stereo_on_surface_grid()
+        scaled_normals[band] = stereo.albedo[..., None] * stereo.normals
+    intensity = {band: np.array([led.intensity.get(band, 1.0) for led in device.leds], dtype=np.float32)[:, None, None] for band in REQUIRED_BANDS}
+    x, y = surface_grid(device)
+    geometry = _DeviceLights(device, x, y, fill_from_nearest(plain[0].mask, plain[0].z)[0],
+                             {band: np.asarray(images[band], dtype=np.float32) / intensity[band] for band in REQUIRED_BANDS})
+    return _physics_passes(geometry.read(geometry.start), geometry, pixel_spacing(device.pixel_um), grid_mask, scaled_normals, plain, scattering=scattering,
+                           kernels=kernels, interreflection=interreflection, highlights=highlights, iterations=iterations,
+                           tolerance=tolerance, radius_um=radius_um, integrator=integrator, progress=progress)
+
+
+class _DistantLights:
+    """Step 4's photometric stereo and the shading model of the passes under distant lights
+    and an orthographic camera. ``start``: no height is needed to solve (None)."""
+
+    kind, start = "distant", None
+
+    def __init__(self, lights, solver=DEFAULT_SOLVER):
+        self.lights, self.solver = lights, solver
+        self.shadow_directions = lights
+
+    def coarse(self, factor):
+        """The same lights on a grid of ``factor`` x ``factor`` block means."""
+        return self
+
+    def stereo(self, shading, z, mask):
+        """(normals, albedo, valid) of the shading stack (NaN: left out)."""
+        stereo = photometric_stereo(shading, self.lights, mask=mask, solver=self.solver, specular_lobe=False)  # highlights are modelled here
+        return stereo.normals, stereo.albedo, stereo.valid
+
+    def anchored(self, height: HeightMap, shading):
+        """The integrated ``height`` with the level the lights need (none: as it is)."""
+        return height
+
+    def irradiance(self, normals, z):
+        """n . l_i per light (m, rows, columns), not clipped."""
+        return np.einsum("rck,mk->mrc", normals, self.lights)
+
+    def lobe(self, normals, z, visible):
+        """The :class:`~skintopo.normals.SpecularLobe` of these normals."""
+        return SpecularLobe(normals, self.lights, visible)
+
+
+class _DeviceLights:
+    """The same on a device's skin-plane grid (:func:`near_field_physics_height`): node (x, y)
+    in mm at height h (um) is the point P = (x, y, -D + h / 1000); its light vectors are
+    s_i(P) D^2 with unit intensities (the images are divided by each LED's intensity in their
+    band), as :func:`skintopo.nearfield.per_pixel_photometric_stereo` takes them. ``start``:
+    the height of the first pass's light vectors (the plain red band's, holes filled)."""
+
+    kind, solver = "device", DEFAULT_SOLVER
+
+    def __init__(self, device: Device, x_mm, y_mm, start, camera_images=None):
+        self.device, self.x, self.y, self.start, self.camera_images = device, x_mm, y_mm, start, camera_images
+        self.shadow_directions = device.central_directions()  # marched from the field centre's directions (the simulator's approximation)
+
+    def coarse(self, factor):
+        return _DeviceLights(self.device, block_mean(self.x, factor, "trim"), block_mean(self.y, factor, "trim"),
+                             block_mean(self.start, factor, "trim"))
+
+    def read(self, z):
+        """The camera images (band -> (m, rows, columns)) at the nodes' points of height
+        ``z``: where each node's point projects (bilinear)."""
+        column, row = self.device.camera.project(self.points(z))
+        return {band: np.stack([scipy.ndimage.map_coordinates(image, [row, column], order=1, mode="nearest") for image in stack])
+                for band, stack in self.camera_images.items()}
+
+    def points(self, z):
+        return np.stack(np.broadcast_arrays(self.x, self.y, np.asarray(z) / 1000 - self.device.working_distance_mm)).astype(float)
+
+    def vectors(self, z):
+        """s_i(P) D^2 per LED, (m, 3, rows, columns)."""
+        points = self.points(z)
+        return np.stack([led.light_vectors(points) for led in self.device.leds]) * self.device.working_distance_mm**2
+
+    def stereo(self, shading, z, mask):
+        from skintopo.nearfield import per_pixel_photometric_stereo  # here: Numba takes 0.3 s to import
+
+        depth = self.device.working_distance_mm - (self.start if z is None else z) / 1000
+        rays = np.stack(np.broadcast_arrays(self.x / depth, self.y / depth, -1.0))
+        normals, albedo, _, _ = per_pixel_photometric_stereo(shading[:, mask], rays[:, mask], depth[mask], self.device, None)
+        normal_map, albedo_map = np.full(mask.shape + (3,), np.nan, np.float32), np.full(mask.shape, np.nan, np.float32)
+        normal_map[mask], albedo_map[mask] = normals.T, albedo
+        return normal_map, albedo_map, mask & np.isfinite(albedo_map)
+
+    def anchored(self, height: HeightMap, shading):
+        """``height`` moved to the plain red height's mean over their common nodes: the
+        integration leaves the level free, and the light vectors depend on it. The plain
+        band's depth scale fixed it photometrically (:mod:`skintopo.nearfield`); a fit of the
+        level to ``shading`` is not used: that scale is weakly determined, and with the
+        height of a pass (6 um RMS from the truth) it came out 2.1 mm (1.4%) off, against
+        0.01 mm with the true shape (simulated paper-like device, 512 px, forehead with
+        translucency and interreflection)."""
+        common = height.mask & np.isfinite(self.start)
+        offset = float(np.mean(self.start[common]) - np.mean(height.z[common]))
+        return HeightMap(height.z + offset, height.spacing, height.mask)
+
+    def irradiance(self, normals, z):
+        return np.einsum("rck,mkrc->mrc", normals, self.vectors(z))
+
+    def lobe(self, normals, z, visible):
+        points, vectors = self.points(z), self.vectors(z)
+        strength = np.linalg.norm(vectors, axis=1)
+        directions = np.moveaxis(vectors / np.maximum(strength, 1e-30)[:, None], 1, -1)
+        view = np.moveaxis(-points / np.linalg.norm(points, axis=0), 0, -1)
+        return SpecularLobe(normals, directions, visible, view, strength)
+
+
+def _physics_passes(images, geometry, spacing, mask, scaled_normals, plain, *, scattering, kernels, interreflection, highlights,
+                    iterations, tolerance, radius_um, integrator, progress) -> PhysicsResult:
+    """Steps 1-4 of the module notes on one grid: ``images`` band -> (m, rows, columns),
+    ``geometry`` the lights' model (:class:`_DistantLights`, :class:`_DeviceLights`), ``scaled_normals`` and ``plain``
+    the bands' plain photometric stereo (rho n) and heights on that grid."""
+    shape = images["red"].shape[1:]
+    albedo_level = {band: float(np.nanmedian(np.linalg.norm(scaled_normals[band], axis=-1))) for band in REQUIRED_BANDS}
+    images = _filled(images, geometry, scaled_normals, mask)
     if not scattering:
         kernels, kernel_fit_rms = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0
     elif kernels is not None:
@@ -444,19 +608,19 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     specular, seed = {"roughness": None, "scale": 0.0}, {}
     if highlights and scattering:  # without the scattering model the lobe fit takes the bands' blur difference for a highlight
         seed, seed_lobe, seed_images = _seed_lobe(plain, _Bands(direct_images, direct_spectra, gain, kernels, albedo_level), fourier,
-                                                  spacing, lights, images)
+                                                  spacing, geometry, images)
         if seed["seeded"]:
             specular, specular_images, specular_spectrum = seed_lobe, seed_images, fourier.forward(seed_images)
     changes, residuals = [], []
-    previous = best = shadowed = None
+    previous = best = shadowed = z = None
     for k, _ in enumerate(progress([f"iteration {n}" for n in range(1, iterations + 1)]), start=1):  # ends early once converged
         shading = fourier.inverse(sum(weight * (d - specular_spectrum) for weight, d in zip(fusion, direct_spectra)))
         if shadowed is not None:
             shading[shadowed] = np.nan  # left out of the fit, as a saturated observation is
-        stereo = photometric_stereo(shading, lights, mask=mask, solver=solver, specular_lobe=False)  # its highlights are modelled here
-        albedo_pattern = np.nan_to_num(stereo.albedo / np.nanmedian(stereo.albedo), nan=1.0)
-        height = integrate_normals(np.where(stereo.valid[..., None], stereo.normals, np.nan), spacing, mask=mask & stereo.valid,
-                                   method=integrator)
+        fitted, albedo, valid = geometry.stereo(shading, z, mask)
+        albedo_pattern = np.nan_to_num(albedo / np.nanmedian(albedo), nan=1.0)
+        height = geometry.anchored(integrate_normals(np.where(valid[..., None], fitted, np.nan), spacing, mask=mask & valid,
+                                                     method=integrator), shading)
         z = fill_from_nearest(height.mask, height.z)[0]
         if previous is not None:
             changes.append(float(np.sqrt(np.mean((z - previous) ** 2)) / max(np.std(z), 1e-12)))
@@ -464,14 +628,18 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
                 break  # the model cannot explain these images (e.g. an effect left out): keep the last good one
         previous = z
         best = (height, albedo_pattern, specular)
-        normals, visible = _normals_and_visibility(z, spacing, lights)
+        normals, visible = _normals_and_visibility(z, spacing, geometry.shadow_directions)
         shadowed = ~visible if shadowed is None else shadowed | ~visible
         # the residual of the model this pass's height was made with (its K and s), with the height's own shading
-        diffuse = fourier.forward(np.maximum(np.einsum("rck,mk->mrc", normals, lights), 0.0) * visible * albedo_pattern)
+        diffuse = fourier.forward(np.maximum(geometry.irradiance(normals, z), 0.0) * visible * albedo_pattern)
         residual = [np.ascontiguousarray(fourier.inverse(d - specular_spectrum - a * diffuse)) for d, a in zip(direct_spectra, gain)]
         residuals.append(float(np.sqrt(sum(_dot(r, r) for r in residual) / sum(r.size for r in residual))))
         if (changes and changes[-1] < tolerance) or k == iterations:
             break  # no next pass to prepare
+        if geometry.kind == "device":  # the images where this height puts the nodes' points
+            images = _filled(geometry.read(z), geometry, scaled_normals, mask)
+            direct_images = [images[band] for band in REQUIRED_BANDS]
+            direct_spectra = [fourier.forward(direct) for direct in direct_images]
         if interreflection:
             gather = _Interreflection(HeightMap(z, height.spacing), radius_um)  # z: its holes already filled
             reflectance = albedo_pattern.astype(np.float32)
@@ -481,7 +649,7 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
             direct_spectra = [fourier.forward(direct) for direct in direct_images]
         if highlights:
             specular, specular_images = _fit_specular(_Bands(direct_images, direct_spectra, gain, kernels, albedo_level), fourier,
-                                                      spacing, normals, lights, visible)
+                                                      spacing, geometry.lobe(normals, z, visible))
             specular_spectrum = fourier.forward(specular_images)
     height, albedo_pattern, specular = best
     if seed:
@@ -489,11 +657,25 @@ def physics_height(images, lights, spacing, *, mask=None, scattering=True, kerne
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
-                  "interreflection": interreflection, "highlights": highlights, "solver": solver,
+                  "interreflection": interreflection, "highlights": highlights, "solver": geometry.solver,
+                  "lights": geometry.kind,
                   "interreflection_radius_um": radius_um if interreflection else None,
                   "interreflection_grid_factor": _Interreflection.grid_factor(shape) if interreflection else None}
     return PhysicsResult(height, albedo_pattern * albedo_level["red"], kernels, specular, len(residuals), changes, residuals,
                          converged, diverged, kernel_fit_rms, components, _agreement(height, plain))
+
+
+def _filled(images, geometry, scaled_normals, mask):
+    """The images in single precision (as the Fourier passes), each missing (saturated, or
+    outside ``mask``) observation replaced by its band's Lambertian fit (rho n . l_i)."""
+    filled = {}
+    for band in REQUIRED_BANDS:
+        filled[band] = np.asarray(images[band], dtype=np.float32)
+        missing = ~(np.isfinite(filled[band]) & mask)
+        if missing.any():
+            predicted = geometry.irradiance(np.nan_to_num(scaled_normals[band]), geometry.start)
+            filled[band] = np.where(missing, predicted, filled[band]).astype(np.float32)
+    return filled
 
 
 def _checked_kernels(kernels):
@@ -543,13 +725,13 @@ def _band_gains(albedo_level, transfer):
 
 
 def _normals_and_visibility(z, spacing, lights):
-    """The normals of a (hole-free) height map and, per light, where it is not in a cast
-    shadow (m, rows, columns)."""
+    """The normals of a (hole-free) height map and, per light direction (m, 3), where it is
+    not in a cast shadow (m, rows, columns)."""
     z32 = z.astype(np.float32)  # shadows in single precision (6e-5 um steps at 1 mm of relief): half the memory traffic
     return height_normals(z, spacing), ~np.stack([cast_shadow(z32, spacing[1], light) for light in lights])
 
 
-def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
+def _seed_lobe(plain, bands: _Bands, fourier, spacing, geometry, images):
     """The first pass's lobe (module notes), fitted to the normals of the plain bands' mean
     height. Returns (record: ``seeded`` when it carries more than ``SEED_SPECULAR_FRACTION``
     of the light of the red, green and blue images, that ``fraction`` and the lobe's
@@ -559,9 +741,9 @@ def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
     z = fill_from_nearest(common, np.where(common, mean, np.nan))[0]
     brightness = np.mean([np.mean(images[band]) for band in REQUIRED_BANDS])
 
-    def lobe(z, bands, fourier, spacing):
-        normals, visible = _normals_and_visibility(z, spacing, lights)
-        return _fit_specular(bands, fourier, spacing, normals, lights, visible)
+    def lobe(z, bands, fourier, spacing, geometry):
+        normals, visible = _normals_and_visibility(z, spacing, geometry.shadow_directions)
+        return _fit_specular(bands, fourier, spacing, geometry.lobe(normals, z, visible))
 
     # whether to seed is decided on block means (the interreflection grid's): the full-resolution
     # fit costs as much as a pass's (measured: physics at 1000 x 1000 4.6 -> 5.3 s), and is
@@ -569,13 +751,13 @@ def _seed_lobe(plain, bands: _Bands, fourier, spacing, lights, images):
     factor = _Interreflection.grid_factor(z.shape)
     if factor > 1:
         coarse, coarse_spacing, coarse_bands = _coarse_bands(bands, fourier, spacing, factor)
-        parameters, specular_images = lobe(block_mean(z, factor, "trim"), coarse_bands, coarse, coarse_spacing)
+        parameters, specular_images = lobe(block_mean(z, factor, "trim"), coarse_bands, coarse, coarse_spacing, geometry.coarse(factor))
     else:
-        parameters, specular_images = lobe(z, bands, fourier, spacing)
+        parameters, specular_images = lobe(z, bands, fourier, spacing, geometry)
     fraction = float(np.mean(specular_images) / brightness)
     seeded = fraction > SEED_SPECULAR_FRACTION
     if seeded and factor > 1:
-        parameters, specular_images = lobe(z, bands, fourier, spacing)
+        parameters, specular_images = lobe(z, bands, fourier, spacing, geometry)
     return {"seeded": seeded, "fraction": round(fraction, 4)} | parameters, parameters, specular_images
 
 
@@ -590,7 +772,7 @@ def _coarse_bands(bands: _Bands, fourier, spacing, factor):
     return coarse, coarse_spacing, _Bands(direct, [coarse.forward(d) for d in direct], gain, bands.kernels, bands.albedo_level)
 
 
-def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
+def _fit_specular(bands: _Bands, fourier, spacing, lobes):
     """Scale k and roughness m of the lobe, from the bands' disagreement alone.
 
     With J_c = T_c[rho_c v E] + s (interreflection removed), the cross-blurred difference of
@@ -637,7 +819,6 @@ def _fit_specular(bands: _Bands, fourier, spacing, normals, lights, visible):
     with estimated, true and edge-calibrated kernels) one height changed: paper-calibrated
     forehead-high light seed 2, edge-calibrated, 40.06 -> 20.60 um (2026-12-06).
     """
-    lobes = SpecularLobe(normals, lights, visible)
     fit = _LobeFit(fourier, bands.spectra, bands.gain, lobes)
     factor = _grid_factor(fourier.shape, MAX_SPECULAR_FIT_PIXELS)
     search = fit
