@@ -43,7 +43,7 @@ from skintopo.height import DEFAULT_INTEGRATOR
 from skintopo.heightmap import HeightMap
 from skintopo.normals import DEFAULT_SHADOW_FRACTION, DEFAULT_SOLVER, checked_specular_colour
 from skintopo.optics import optics_profile
-from skintopo.physics import PhysicsResult, physics_height
+from skintopo.physics import PhysicsResult, near_field_physics_height, physics_height
 from skintopo.pores import PoreMeasures, measure_pores
 from skintopo.reconstruct import DEFAULT_HIGHLIGHTS, SPECULAR_FREE, reconstruct_band, rgb_share_lights, specular_separation
 from skintopo.segmentation import (
@@ -329,9 +329,6 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         what = f"the spectral correction ({method})" if spectral else f"the height method {method!r}"
         raise SkinTopoError(f"{acquisition.source}: {what} needs {', '.join(needed[:-1]) + ' and ' + needed[-1] if len(needed) > 1 else needed[0]} "
                             f"images; missing {missing} (the acquisition has {sorted(acquisition.bands)})")
-    if method == PHYSICS and acquisition.device is not None:
-        raise SkinTopoError(f"{acquisition.source}: the physics height models distant lights; this acquisition has a device "
-                            "(near-field LEDs): measure a band or the spectral correction")
     if method == PHYSICS and not rgb_share_lights(acquisition):
         raise SkinTopoError(f"{acquisition.source}: the physics height needs red, green and blue images taken under the same lights, "
                             "in the same order")
@@ -352,13 +349,33 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:
-        physics = physics_height({b: acquisition.bands[b].images for b in REQUIRED_BANDS}, acquisition.bands["red"].lights,
-                                 acquisition.pixel_um, mask=acquisition.mask, kernels=options.height.kernels(),
-                                 integrator=options.reconstruction.integrator, solver=options.reconstruction.solver,
-                                 progress=step_progress)
-        return AcquisitionHeight(physics.height, albedo, "physics (scattering, interreflection and highlights inverted)", results,
+        physics = _physics(acquisition, options, results, step_progress)
+        inverted = "scattering, interreflection and highlights inverted" if physics.components["highlights"] else \
+            "scattering and interreflection inverted, highlights separated cross-band"
+        return AcquisitionHeight(physics.height, albedo, f"physics ({inverted}{', near-field LEDs' if acquisition.device else ''})", results,
                                  None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
+
+
+def _physics(acquisition, options: MeasureOptions, results, progress) -> PhysicsResult:
+    """The physics height of ``acquisition`` (:mod:`skintopo.physics`). With a device,
+    ``--highlights cross-band`` gives it the separated diffuse images and no highlight lobe
+    of its own (on the simulated paper-like device its lobe did not find the highlights of
+    near LEDs on a curved forehead: Method and validation, "The real device"), and the
+    bands' near-field reconstructions ``results`` are reused."""
+    images = {band: acquisition.bands[band].images for band in REQUIRED_BANDS}
+    common = {"mask": acquisition.mask, "kernels": options.height.kernels(), "integrator": options.reconstruction.integrator,
+              "progress": progress}
+    if acquisition.device is None:
+        return physics_height(images, acquisition.bands["red"].lights, acquisition.pixel_um, solver=options.reconstruction.solver, **common)
+    separated = options.reconstruction.highlights == "cross-band"
+    if separated:
+        separation = specular_separation(acquisition, options.reconstruction.specular_colour)
+        images = {band: values - separation.band_specular(band) for band, values in images.items()}
+    device = acquisition.device
+    device = replace(device, leds=tuple(device.led(name) for name in acquisition.bands["red"].leds))
+    return near_field_physics_height(images, device, highlights=not separated, solved={band: results[band].near_field for band in REQUIRED_BANDS},
+                                     **common)
 
 
 @dataclass(frozen=True, eq=False)

@@ -42,6 +42,11 @@ def test_device_acquisition_from_synth_to_measure(tmp_path):
     assert measured.shape == truth.shape and measured.spacing == pytest.approx(truth.spacing)
     # measure levels the map (a plane): compare after removing a quadratic form from the difference
     assert _after_form(measured, truth) < 30.0
+    # the physics height runs through the device too (its accuracy: tests/physics), on the same grid
+    assert main(["correct", str(acquisition), "--method", "physics", "-o", str(tmp_path / "physics"), "-q"]) == 0
+    assert json.loads((tmp_path / "physics" / "physics.json").read_text())["components"]["lights"] == "device"
+    assert json.loads((tmp_path / "physics" / "summary.json").read_text())["height"].endswith("near-field LEDs)")
+    assert HeightMap.load(tmp_path / "physics" / "height.x3p").shape == truth.shape
 
     def refused(change, message):
         broken = json.loads(json.dumps(manifest))

@@ -417,3 +417,19 @@ def test_specular_lobe_on_path_traced_coated_objects(mitsuba_renderer):
             print(f"{name} alpha {alpha}: plain {plain:.2f}, default {without[0]:.2f} -> {default:.2f}, robust {without[1]:.2f} -> {robust:.2f}")
             assert default < without[0] - 0.2 and default < plain
             assert robust < without[1] and robust < plain
+
+
+def test_specular_lobe_per_pixel_lights_equal_the_directional_lobe_when_they_do_not_vary():
+    """Near LEDs give each pixel its own light, view and irradiance; with every pixel given
+    the same light, the view (0, 0, 1) and irradiance 2, the lobe is twice the directional one."""
+    from skintopo.normals import SpecularLobe
+    from skintopo.synth import make_surface, preset_spec
+    from skintopo.synth.render import default_lights
+
+    normals = make_surface(preset_spec("flat-microrelief", size_px=32), seed=1).normals
+    lights = default_lights(40.0, 4)
+    per_pixel = np.broadcast_to(lights[:, None, None, :], (4, 32, 32, 3))
+    view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (32, 32, 3))
+    for roughness in (0.2, 0.4):
+        np.testing.assert_allclose(SpecularLobe(normals, per_pixel, view=view, strength=2.0)(roughness),
+                                   2 * SpecularLobe(normals, lights)(roughness), rtol=1e-5, atol=1e-6)
