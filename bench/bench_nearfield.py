@@ -22,6 +22,8 @@ Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|sk
 highlights with the cross-band separation, the same with the profile's true specular colour
 given, and removed exactly), to find which one makes the near-field gap
 (nearfield-SIZE-per-effect[-OPTICS].json).
+``--physics`` scores the physics height through the device against the same skin under
+ideal lights (nearfield-SIZE-physics[-OPTICS].json).
 ``--optics NAME`` renders with that skin-optics profile (default: the simulator's, default-v1).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band][-OPTICS].json.
 """
@@ -43,6 +45,7 @@ from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.nearfield import near_field_photometric_stereo
 from skintopo.normals import photometric_stereo, separate_specular
+from skintopo.physics import near_field_physics_height, physics_height
 from skintopo.synth import PROFILES, Effects, RenderSettings, optics_profile, preset_spec, simulate_acquisition
 from skintopo.synth.nearfield import device_surface, simulate_device_acquisition, camera_grid_surface
 from skintopo.synth.render import fresnel_dielectric
@@ -180,6 +183,51 @@ def mitsuba_check(size, spp=16):
     write_result(f"nearfield-mitsuba-{size}", result)
 
 
+def physics_check(size, optics_name=None):
+    """The physics height (skintopo.physics) through the device against the same skin under
+    ideal distant lights and an orthographic camera, with plain red and blue beside it, for
+    three sets of the skin's effects; with highlights, physics both with its own highlight
+    lobe and on the cross-band diffuse images (its lobe off, as ``--highlights cross-band``
+    gives it). Images divided by the recorded exposure, as an acquisition's intensities do."""
+    optics = optics_profile(optics_name or DEFAULT_SKIN_OPTICS)
+    device, surface = device_scene(size)
+    crop = camera_grid_surface(surface, device)
+    truth, lights = crop.height, device.central_directions()
+    cases = {"translucency": Effects(shadows=False, interreflection=False, specular=False, albedo_variation=False),
+             "skin without highlights": Effects(specular=False), "skin": Effects()}
+    rows = []
+    for name, effects in cases.items():
+        settings = RenderSettings(effects=effects, noise=1.0, optics=optics)
+        bands, info = simulate_device_acquisition(surface, device, settings, seed=1)
+        ideal, ideal_info = simulate_acquisition(crop, replace(settings, lights=lights), seed=1)
+        bands = {b: bands[b] / info["exposure_gain"][b] for b in RGB}
+        ideal = {b: ideal[b][0] / ideal_info["exposure_gain"][b] for b in RGB}
+        variants = [("none", bands, ideal)]
+        if effects.specular:
+            variants.append(("cross-band", *({b: images[b] - separate_specular(*(images[c] for c in RGB)).band_specular(b) for b in RGB}
+                                              for images in (bands, ideal))))
+        for highlights, near_images, ideal_images in variants:
+            row = {"effects": name, "highlights": highlights, "ideal": {}, "near_field": {}}
+            start = None
+            for band in ("red", "blue"):
+                row["ideal"][band] = scores(distant_reconstruction(ideal_images[band], lights, truth.spacing), truth)
+                start = near_field_photometric_stereo(near_images[band], device, band, start=start)
+                row["near_field"][band] = scores(start.height, truth)
+            lobe = highlights == "none"
+            begun = time.perf_counter()
+            found = physics_height(ideal_images, lights, truth.spacing, highlights=lobe)
+            row["ideal"]["physics"] = scores(found.height, truth) | {"seconds": time.perf_counter() - begun, "changes": found.changes}
+            begun = time.perf_counter()
+            found = near_field_physics_height(near_images, device, highlights=lobe)
+            row["near_field"]["physics"] = scores(found.height, truth) | {"seconds": time.perf_counter() - begun, "changes": found.changes,
+                                                                           "kernels": {b: k.as_dict() for b, k in found.kernels.items()}}
+            rows.append(row)
+            print(name, highlights, {side: {k: round(v["rms_after_form_um"], 2) for k, v in row[side].items()} for side in ("ideal", "near_field")},
+                  flush=True)
+    name = f"nearfield-{size}-physics" + ("" if optics_name is None else f"-{optics_name}")
+    write_result(name, {"device": device.describe(), "optics": optics.name, "size_px": size, "rows": rows})
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=1000, help="camera pixels across (the field stays 65 mm)")
@@ -191,11 +239,14 @@ def main():
                         help="the skin-optics profile of the renders (default: the simulator's, default-v1)")
     parser.add_argument("--mitsuba", action="store_true", help="the comparison on Mitsuba 3 renders instead (mitsuba-SIZE.json)")
     parser.add_argument("--per-effect", action="store_true", help="each skin effect alone (nearfield-SIZE-per-effect.json)")
+    parser.add_argument("--physics", action="store_true", help="the physics height through the device (nearfield-SIZE-physics.json)")
     args = parser.parse_args()
     if args.mitsuba:
         return mitsuba_check(args.size)
     if args.per_effect:
         return per_effect(args.size, args.optics)
+    if args.physics:
+        return physics_check(args.size, args.optics)
     device, surface = device_scene(args.size)
     settings = RenderSettings(effects=EFFECTS[args.effects], noise=1.0)
     if args.optics is not None:
