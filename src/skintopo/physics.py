@@ -476,18 +476,19 @@ def near_field_physics_height(images, device: Device, *, mask=None, scattering=T
     scaled_normals = {}
     for band in REQUIRED_BANDS:
         stereo = solved[band].stereo_on_surface_grid()
-        # nodes without a normal (the corners the camera does not see) take their nearest node's: the images
-        # there are filled from these, and zeros next to the seen field rang through the deconvolution as a dark
-        # line of nodes that the shadow rule then left with too few LEDs (1000 px device: 9.8 mm spikes)
+        # nodes without a normal take their nearest node's: the images of nodes the camera does not see are
+        # filled from these, and zeros there would ring through the deconvolution into the seen field
         known = stereo.valid & np.isfinite(stereo.albedo)
         scaled_normals[band] = np.stack(fill_from_nearest(known, *np.moveaxis(stereo.albedo[..., None] * stereo.normals, -1, 0)), axis=-1)
-    intensity = {band: np.array([led.intensity.get(band, 1.0) for led in device.leds], dtype=np.float32)[:, None, None] for band in REQUIRED_BANDS}
+    divided = {}
+    for band in REQUIRED_BANDS:
+        intensity = np.array([led.intensity.get(band, 1.0) for led in device.leds], dtype=np.float32)
+        divided[band] = np.asarray(images[band], dtype=np.float32) / intensity[:, None, None]
     x, y = surface_grid(device)
-    geometry = _DeviceLights(device, x, y, fill_from_nearest(plain[0].mask, plain[0].z)[0],
-                             {band: np.asarray(images[band], dtype=np.float32) / intensity[band] for band in REQUIRED_BANDS})
-    return _physics_passes(geometry.read(geometry.start), geometry, pixel_spacing(device.pixel_um), geometry.seen(mask), scaled_normals, plain, scattering=scattering,
-                           kernels=kernels, interreflection=interreflection, highlights=highlights, iterations=iterations,
-                           tolerance=tolerance, radius_um=radius_um, integrator=integrator, progress=progress)
+    geometry = _DeviceLights(device, x, y, fill_from_nearest(plain[0].mask, plain[0].z)[0], divided)
+    return _physics_passes(geometry.read(geometry.start), geometry, pixel_spacing(device.pixel_um), geometry.seen(mask), scaled_normals,
+                           plain, scattering=scattering, kernels=kernels, interreflection=interreflection, highlights=highlights,
+                           iterations=iterations, tolerance=tolerance, radius_um=radius_um, integrator=integrator, progress=progress)
 
 
 class _DistantLights:
@@ -506,14 +507,15 @@ class _DistantLights:
 
     def stereo(self, shading, z, mask):
         """(normals, albedo, valid) of the shading stack (NaN: left out)."""
-        stereo = photometric_stereo(shading, self.lights, mask=mask, solver=self.solver, specular_lobe=False)  # highlights are modelled here
+        # its highlights are modelled by the passes
+        stereo = photometric_stereo(shading, self.lights, mask=mask, solver=self.solver, specular_lobe=False)
         return stereo.normals, stereo.albedo, stereo.valid
 
     def integrated(self, normals, valid, mask, spacing, integrator):
         """The height of the ``valid`` normals inside ``mask``."""
         return integrate_normals(np.where(valid[..., None], normals, np.nan), spacing, mask=mask & valid, method=integrator)
 
-    def anchored(self, height: HeightMap, shading):
+    def anchored(self, height: HeightMap):
         """The integrated ``height`` with the level the lights need (none: as it is)."""
         return height
 
@@ -545,10 +547,8 @@ class _DeviceLights:
 
     def seen(self, mask=None):
         """The nodes whose point (at the start height) the camera sees on a pixel of ``mask``
-        (default: every pixel). Not the plain heights' masks: their resampling leaves
-        isolated nodes out (a fixed point that did not settle), and a line of them cut a
-        corner of the grid off, which the integration then left at a level of its own
-        (simulated paper-like device, 1000 px: 9.8 mm)."""
+        (default: every pixel). Not the plain heights' masks: their resampling leaves out the
+        nodes where its fixed point did not settle, which the passes can still solve."""
         column, row = self.device.camera.project(self.points(self.start))
         rows, columns = self.device.camera.size_px
         seen = (column >= 0) & (column <= columns - 1) & (row >= 0) & (row <= rows - 1)
@@ -590,11 +590,11 @@ class _DeviceLights:
         height = integrate_normals(bridged, spacing, mask=mask, method=integrator)
         return HeightMap(np.where(valid, height.z, np.nan), height.spacing, height.mask & valid)
 
-    def anchored(self, height: HeightMap, shading):
+    def anchored(self, height: HeightMap):
         """``height`` moved to the plain red height's mean over their common nodes: the
         integration leaves the level free, and the light vectors depend on it. The plain
         band's depth scale fixed it photometrically (:mod:`skintopo.nearfield`); a fit of the
-        level to ``shading`` is not used: that scale is weakly determined, and with the
+        level to the pass's shading is not used: that scale is weakly determined, and with the
         height of a pass (6 um RMS from the truth) it came out 2.1 mm (1.4%) off, against
         0.01 mm with the true shape (simulated paper-like device, 512 px, forehead with
         translucency and interreflection)."""
@@ -656,7 +656,7 @@ def _physics_passes(images, geometry, spacing, mask, scaled_normals, plain, *, s
             shading[shadowed] = np.nan  # left out of the fit, as a saturated observation is
         fitted, albedo, valid = geometry.stereo(shading, z, mask)
         albedo_pattern = np.nan_to_num(albedo / np.nanmedian(albedo), nan=1.0)
-        height = geometry.anchored(geometry.integrated(fitted, valid, mask, spacing, integrator), shading)
+        height = geometry.anchored(geometry.integrated(fitted, valid, mask, spacing, integrator))
         z = fill_from_nearest(height.mask, height.z)[0]
         if previous is not None:
             changes.append(float(np.sqrt(np.mean((z - previous) ** 2)) / max(np.std(z), 1e-12)))

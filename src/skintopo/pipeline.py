@@ -352,8 +352,8 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         physics = _physics(acquisition, options, results, step_progress)
         inverted = "scattering, interreflection and highlights inverted" if physics.components["highlights"] else \
             "scattering and interreflection inverted, highlights separated cross-band"
-        return AcquisitionHeight(physics.height, albedo, f"physics ({inverted}{', near-field LEDs' if acquisition.device else ''})", results,
-                                 None, physics)
+        lights = ", near-field LEDs" if acquisition.device else ""
+        return AcquisitionHeight(physics.height, albedo, f"physics ({inverted}{lights})", results, None, physics)
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
 
 
@@ -374,8 +374,8 @@ def _physics(acquisition, options: MeasureOptions, results, progress) -> Physics
         images = {band: values - separation.band_specular(band) for band, values in images.items()}
     device = acquisition.device
     device = replace(device, leds=tuple(device.led(name) for name in acquisition.bands["red"].leds))
-    return near_field_physics_height(images, device, highlights=not separated, solved={band: results[band].near_field for band in REQUIRED_BANDS},
-                                     **common)
+    solved = {band: results[band].near_field for band in REQUIRED_BANDS}
+    return near_field_physics_height(images, device, highlights=not separated, solved=solved, **common)
 
 
 @dataclass(frozen=True, eq=False)
