@@ -49,8 +49,13 @@ def surface_points_mm(height: HeightMap, working_distance_mm):
 def near_lighting(height: HeightMap, device: Device):
     """:class:`~skintopo.synth.render.NearLighting` of the device's LEDs over a height field."""
     points = surface_points_mm(height, device.working_distance_mm)
+    # times D^2: an LED of intensity 1 gives irradiance 1 at the working distance on its axis, the
+    # convention of the near-field solver (skintopo.nearfield.per_pixel_photometric_stereo), so that the
+    # albedo it finds is the skin's reflectance (which the physics height's interreflection needs). It
+    # was normalised to 1 at the field centre, 100 mm from the paper device's LEDs, and the albedo came
+    # out 2.25x too low; the images after the sensor's auto-exposure are the same either way.
     vectors = np.stack([np.moveaxis(led.light_vectors(np.moveaxis(points, -1, 0)), 0, -1) for led in device.leds])
-    vectors /= np.linalg.norm(vectors[:, vectors.shape[1] // 2, vectors.shape[2] // 2], axis=-1).max()  # ~1 at the centre
+    vectors *= device.working_distance_mm**2
     view = -points / np.linalg.norm(points, axis=-1, keepdims=True)
     intensities = {band: np.array([led.intensity.get(band, 1.0) for led in device.leds]) for band in ("red", "green", "blue")}
     return NearLighting(vectors, intensities, view, device.central_directions())

@@ -159,7 +159,8 @@ class NearLighting:
     Attributes
     ----------
     vectors : ndarray (m, rows, columns, 3)
-        s(P) of each LED at unit intensity (:meth:`skintopo.device.Led.light_vectors`).
+        s(P) D^2 of each LED at unit intensity (:meth:`skintopo.device.Led.light_vectors`; D the
+        working distance: irradiance 1 at D on the LED's axis, the near-field solver's convention).
     intensities : dict of str to ndarray (m,)
         Each LED's relative intensity per band.
     view : ndarray (rows, columns, 3)
