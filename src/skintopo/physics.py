@@ -84,7 +84,7 @@ brighter bands) looks like a red blur: on deep-wrinkled diffuse renders it finds
 where there is no scattering (Mitsuba forehead-high: w 0.8-0.95). The
 iteration often stops at its pass limit before the 2% tolerance (reported). Through a device
 (:func:`near_field_physics_height`) the height matches the ideal device's on skin without
-highlights, and falls short of it with highlights (36.6 um with its own lobe, 7.1 um on the
+highlights, and falls short of it with highlights (35.5 um with its own lobe, 7.1 um on the
 cross-band diffuse images, 1000 px; docs, "The real device").
 """
 

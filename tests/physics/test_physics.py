@@ -349,7 +349,7 @@ def test_physics_through_a_device_matches_the_same_skin_under_ideal_lights():
     a forehead of 80 mm radius with the simulator's translucency, interreflection, cast
     shadows and albedo variation (no highlights): the physics height through the device is
     within 2 um RMS after form removal of the physics height of the same skin under ideal
-    distant lights and an orthographic camera (measured 2.37 against 1.55 um), well under
+    distant lights and an orthographic camera (measured 2.36 against 1.55 um), well under
     plain near-field red (5.78 um), and the radius within 1% (+0.17%). The truth is the raw
     geometry on the device's skin-plane grid."""
     from dataclasses import replace
