@@ -358,11 +358,12 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
 
 
 def _physics(acquisition, options: MeasureOptions, results, progress) -> PhysicsResult:
-    """The physics height of ``acquisition`` (:mod:`skintopo.physics`). With a device,
-    ``--highlights cross-band`` gives it the separated diffuse images and no highlight lobe
-    of its own (on the simulated paper-like device its lobe did not find the highlights of
-    near LEDs on a curved forehead: Method and validation, "The real device"), and the
-    bands' near-field reconstructions ``results`` are reused."""
+    """The physics height of ``acquisition`` (:mod:`skintopo.physics`). Under distant lights
+    it models the highlights itself (``--highlights`` does not apply). With a device the
+    bands' near-field reconstructions ``results`` are reused, and ``--highlights cross-band``
+    gives it the separated diffuse images and no highlight lobe of its own (on the simulated
+    paper-like device's shiny forehead, 21.9 against 106.5 um after form with its own lobe:
+    Method and validation, "The physics height through the device")."""
     images = {band: acquisition.bands[band].images for band in REQUIRED_BANDS}
     common = {"mask": acquisition.mask, "kernels": options.height.kernels(), "integrator": options.reconstruction.integrator,
               "progress": progress}
