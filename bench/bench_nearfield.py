@@ -204,8 +204,11 @@ def physics_check(size, optics_name=None):
         ideal = {b: ideal[b][0] / ideal_info["exposure_gain"][b] for b in RGB}
         variants = [("none", bands, ideal)]
         if effects.specular:
-            variants.append(("cross-band", *({b: images[b] - separate_specular(*(images[c] for c in RGB)).band_specular(b) for b in RGB}
-                                              for images in (bands, ideal))))
+            separated = []
+            for images in (bands, ideal):
+                separation = separate_specular(*(images[b] for b in RGB))  # once per capture, not per band
+                separated.append({b: images[b] - separation.band_specular(b) for b in RGB})
+            variants.append(("cross-band", *separated))
         for highlights, near_images, ideal_images in variants:
             row = {"effects": name, "highlights": highlights, "ideal": {}, "near_field": {}}
             start = None

@@ -270,13 +270,15 @@ def crop_region(height: HeightMap, box, name):
 PROCESSING_BYTES_PER_PIXEL = {"reconstruct": 210, "correct": 330, "measure": 260}
 
 
-def reconstruct_bands(acquisition, options: ReconstructionOptions = ReconstructionOptions(), bands=None, progress=iter, integrate=True):
+def reconstruct_bands(acquisition, options: ReconstructionOptions = ReconstructionOptions(), bands=None, progress=iter, integrate=True,
+                      separation=None):
     """Normals, albedo and height of each band (default: every band present; ``integrate=False``:
     no height, see :func:`skintopo.reconstruct.reconstruct_band`).
 
-    ``progress`` wraps the iteration over bands (e.g. a tqdm bar)."""
-    # once for every band
-    separation = specular_separation(acquisition, options.specular_colour) if options.highlights == "cross-band" else None
+    ``progress`` wraps the iteration over bands (e.g. a tqdm bar). ``separation``: the
+    acquisition's :func:`~skintopo.reconstruct.specular_separation`, when already made."""
+    if options.highlights == "cross-band" and separation is None:  # once for every band
+        separation = specular_separation(acquisition, options.specular_colour)
     results = {}
     for band in progress(list(bands or acquisition.bands)):
         # with a device, each band starts from the first band's depth (the same skin at the same distance)
@@ -338,7 +340,9 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
         wanted = list(acquisition.bands)
     else:
         wanted = list(REQUIRED_BANDS) if derived else [method]
-    results = reconstruct_bands(acquisition, options.reconstruction, wanted, progress, integrate=every_band or not derived)
+    reconstruction = options.reconstruction
+    separation = specular_separation(acquisition, reconstruction.specular_colour) if reconstruction.highlights == "cross-band" else None
+    results = reconstruct_bands(acquisition, reconstruction, wanted, progress, integrate=every_band or not derived, separation=separation)
     albedo_band = "red" if "red" in results else next(iter(results))
     albedo = results[albedo_band].stereo.albedo
     if spectral:
@@ -349,7 +353,7 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
                                          **options.segmentation.as_kwargs())
         return AcquisitionHeight(correction.height, albedo, f"spectral correction ({method})", results, correction)
     if method == PHYSICS:
-        physics = _physics(acquisition, options, results, step_progress)
+        physics = _physics(acquisition, options, results, step_progress, separation)
         inverted = "scattering, interreflection and highlights inverted" if physics.components["highlights"] else \
             "scattering and interreflection inverted, highlights separated cross-band"
         lights = ", near-field LEDs" if acquisition.device else ""
@@ -357,13 +361,14 @@ def acquisition_height(acquisition, options: MeasureOptions = MeasureOptions(), 
     return AcquisitionHeight(results[method].height, albedo, f"{method} band", results, None)
 
 
-def _physics(acquisition, options: MeasureOptions, results, progress) -> PhysicsResult:
+def _physics(acquisition, options: MeasureOptions, results, progress, separation) -> PhysicsResult:
     """The physics height of ``acquisition`` (:mod:`skintopo.physics`). Under distant lights
     it models the highlights itself (``--highlights`` does not apply). With a device the
     bands' near-field reconstructions ``results`` are reused, and ``--highlights cross-band``
     gives it the separated diffuse images and no highlight lobe of its own (on the simulated
     paper-like device's shiny forehead, 21.9 against 106.5 um after form with its own lobe:
-    Method and validation, "The physics height through the device")."""
+    Method and validation, "The physics height through the device"); ``separation``: that of
+    the bands' reconstructions."""
     images = {band: acquisition.bands[band].images for band in REQUIRED_BANDS}
     common = {"mask": acquisition.mask, "kernels": options.height.kernels(), "integrator": options.reconstruction.integrator,
               "progress": progress}
@@ -371,7 +376,6 @@ def _physics(acquisition, options: MeasureOptions, results, progress) -> Physics
         return physics_height(images, acquisition.bands["red"].lights, acquisition.pixel_um, solver=options.reconstruction.solver, **common)
     separated = options.reconstruction.highlights == "cross-band"
     if separated:
-        separation = specular_separation(acquisition, options.reconstruction.specular_colour)
         images = {band: values - separation.band_specular(band) for band, values in images.items()}
     device = acquisition.device
     device = replace(device, leds=tuple(device.led(name) for name in acquisition.bands["red"].leds))
