@@ -28,7 +28,7 @@ from skintopo.synth import default_settings, make_surface, preset_spec, simulate
 
 def capture(spec, surface_seed, noise_seed, rng):
     shifted = dataclasses.replace(spec, shift_um=tuple(rng.uniform(-40.0, 40.0, 2)))
-    bands, _ = simulate_acquisition(make_surface(shifted, seed=surface_seed), default_settings(), seed=noise_seed)
+    bands, _ = simulate_acquisition(make_surface(shifted, seed=surface_seed), default_settings(), seed=noise_seed, skin_seed=surface_seed)
     stereo = photometric_stereo(*bands["white"])
     return integrate_normals(stereo.normals, spec.pixel_um, mask=stereo.valid)
 

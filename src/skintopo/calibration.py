@@ -32,6 +32,26 @@ the edge, not a chosen family: the weights, found by non-negative least squares,
 profile, and heavy tails come out as weight on wide rungs. Narrower than a pixel is taken as
 re-emerging where it entered; wider than a third of the profile is not measured.
 
+The surface reflection's colour (for the cross-band separation,
+:func:`skintopo.normals.separate_specular`), from two captures of the same skin under the same
+lights and exposure: one through parallel polarisers (a linear polariser on the LEDs, the
+camera's analyser parallel to it) and one through crossed ones. The surface reflection keeps
+the light's polarisation and is blocked by the crossed analyser; the diffuse light,
+depolarised by its scattering in the skin, passes either analyser by half. So per observation
+(light i, band b; each light's relative intensity per band divided out) the difference is
+the surface reflection alone,
+
+    D_bi = I_bi(parallel) - I_bi(crossed) = T s_i w_b,
+
+T the polarisers' transmission (the same in every band), s_i the observation's surface
+reflection and w its colour. w_b = sum D_bi / sum mean_b(D_bi) over every observation finite
+in every band: sums, so that the two captures' noise, of zero mean, averages out (taking only
+the strongest differences would also take the noise that made them strongest, which noise
+shared between the bands, a renderer's or a demosaiced camera's, would colour: on Mitsuba
+renders it took a fifth off the colour's departure from white). The strongest differences
+(the top ``SPECULAR_TOP_SHARE`` by mean_b D) only show that there is a reflection: they must
+exceed the most negative ones, the noise, ``SPECULAR_OVER_NOISE`` times.
+
 Matte (Lambertian) white sphere. The normal of every sphere pixel is known from the fitted
 circle; I = e rho max(0, n . l) is solved for g = e rho l by least squares over the lit
 pixels (above 10% of the image's maximum on the sphere, away from the terminator), giving
@@ -51,6 +71,7 @@ from skintopo.acquisition import read_image
 from skintopo.acquisition.manifest import IMAGE_SUFFIXES
 from skintopo.device import Camera, Device, Led, aimed_at, check_device
 from skintopo.errors import SkinTopoError
+from skintopo.normals import checked_specular_colour
 from skintopo.optics import BANDS, ScatteringProfile
 
 HIGHLIGHT_LEVEL = 0.9
@@ -418,6 +439,101 @@ def calibrate_device(camera: Camera, working_distance_mm, chrome_image_sets, sph
     if problems:
         raise SkinTopoError("the calibrated device is not usable: " + "; ".join(problems))
     return device, details
+
+
+SPECULAR_COLOUR_FORMAT = "skintopo-specular-colour"
+SPECULAR_TOP_SHARE = 0.1  # the observations with the strongest surface reflection, which must stand out of the noise
+SPECULAR_OVER_NOISE = 3.0  # the strongest differences must exceed the strongest opposite ones (noise) this many times
+
+
+def specular_colour_from_polarised(parallel, crossed, *, top_share=SPECULAR_TOP_SHARE):
+    """The surface reflection's colour from a parallel- and a cross-polarised capture of the
+    same skin (module notes).
+
+    Parameters
+    ----------
+    parallel, crossed : skintopo.acquisition.Acquisition
+        The two captures: the same camera, lights (or LEDs), exposure and pose; red, green and
+        blue in both.
+    top_share : float
+        Share of the observations, strongest difference first, that must show a reflection.
+
+    Returns
+    -------
+    colour : tuple of 3 floats
+        Red, green, blue, scaled to a mean of 1 (what ``--specular-colour`` takes).
+    record : dict
+        Observations used; of the strongest differences, how many, their share of the
+        parallel capture's light, and the spread (quartiles) of their per-observation colour.
+    """
+    names = f"{parallel.source} (parallel) and {crossed.source} (crossed)"
+    missing = {str(a.source): [b for b in BANDS if b not in a.bands] for a in (parallel, crossed)}
+    missing = {source: bands for source, bands in missing.items() if bands}
+    if missing:
+        raise SkinTopoError("the surface reflection's colour needs red, green and blue in both captures; missing: "
+                            + "; ".join(f"{source}: {', '.join(bands)}" for source, bands in missing.items()))
+    if parallel.shape != crossed.shape:
+        raise SkinTopoError(f"{names}: images of {parallel.shape} and {crossed.shape} pixels: the two captures must be taken "
+                            "with the same camera")
+    for band in BANDS:
+        one, other = parallel.bands[band], crossed.bands[band]
+        if len(one.images) != len(other.images) or not np.allclose(one.lights, other.lights, atol=1e-3) or one.leds != other.leds:
+            raise SkinTopoError(f"{names}: the {band} images were not taken under the same lights ({len(one.images)} and "
+                                f"{len(other.images)} images): the two captures must use the same lights, in the same order")
+    inside = parallel.mask & crossed.mask
+    difference = np.stack([parallel.bands[b].images[:, inside] - crossed.bands[b].images[:, inside] for b in BANDS]).reshape(3, -1)
+    level = np.stack([parallel.bands[b].images[:, inside] for b in BANDS]).reshape(3, -1).mean(axis=0)
+    usable = np.isfinite(difference).all(axis=0) & np.isfinite(level)
+    difference, level = difference[:, usable], level[usable]
+    if difference.shape[1] < 100:
+        raise SkinTopoError(f"{names}: fewer than 100 observations unsaturated in every band inside both masks")
+    mean = difference.mean(axis=0)
+    strongest = mean >= np.quantile(mean, 1 - top_share)
+    # the noise of two captures is symmetric: the most negative differences show how far it reaches
+    signal, opposite = float(mean[strongest].mean()), float(-mean[mean <= np.quantile(mean, top_share)].mean())
+    share = float(mean[strongest].sum() / max(level[strongest].sum(), np.finfo(float).tiny))
+    if signal < SPECULAR_OVER_NOISE * max(opposite, 0.0):
+        hint = ("the crossed capture is the brighter one: are the two swapped?" if opposite >= SPECULAR_OVER_NOISE * max(signal, 0.0)
+                else "are the polarisers parallel in the first capture and crossed in the second?")
+        raise SkinTopoError(f"{names}: no surface reflection found: the largest differences parallel minus crossed ({signal:.3g}) are "
+                            f"not {SPECULAR_OVER_NOISE:g}x the largest opposite ones ({opposite:.3g}: the two captures' noise); {hint}")
+    totals = difference.sum(axis=1)
+    if not (totals > 0).all():
+        raise SkinTopoError(f"{names}: the difference is not positive in every band ({dict(zip(BANDS, totals.round(6).tolist()))}): "
+                            "the captures differ by more than the surface reflection (exposure, pose or lights changed?)")
+    colour = totals / totals.mean()
+    ratios = difference[:, strongest] / mean[strongest]  # their spread: how well one colour describes them
+    record = {"observations": int(mean.size), "observations_strongest": int(strongest.sum()),
+              "specular_share_of_parallel_light": share,
+              "per_observation_quartiles": {b: np.percentile(r, [25, 50, 75]).round(4).tolist() for b, r in zip(BANDS, ratios)}}
+    return tuple(float(c) for c in colour), record
+
+
+def write_specular_colour(path, colour, *, record=None, source=None):
+    """Write the surface reflection's colour as JSON (``--specular-colour FILE``)."""
+    from skintopo.outputs import write_json_atomic
+
+    write_json_atomic(Path(path), {"format": SPECULAR_COLOUR_FORMAT, "version": 1, "specular_colour": list(colour),
+                                   "source": source, "fit": record})
+
+
+def read_specular_colour(path):
+    """The (red, green, blue) colour of a file of :func:`write_specular_colour`; a clear
+    error naming the file otherwise."""
+    import json
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:
+        raise SkinTopoError(f"{path}: cannot read a specular colour ({error})") from None
+    if not isinstance(data, dict) or data.get("format") != SPECULAR_COLOUR_FORMAT:
+        raise SkinTopoError(f"{path}: not a specular-colour file (format {SPECULAR_COLOUR_FORMAT!r} expected; "
+                            "write one with 'skintopo calibrate highlight')")
+    try:
+        return checked_specular_colour(data.get("specular_colour"))
+    except SkinTopoError as error:
+        raise SkinTopoError(f"{path}: {error}") from None
 
 
 DIFFUSION_FORMAT = "skintopo-diffusion-profiles"

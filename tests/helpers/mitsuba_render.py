@@ -36,12 +36,15 @@ def _write_ply(path, z, pixel):
     Path(path).write_bytes(header.encode() + vertices.tobytes() + face_records.tobytes())
 
 
-def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_depth=8, seed=0, face_normals=True):
+def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_depth=8, seed=0, face_normals=True, coat_colour=None):
     """Images (3 bands, m, rows, columns) of the height field ``z_um`` (micrometres).
 
     ``albedo``: (red, green, blue) diffuse reflectance; ``coat_roughness``: None for a
     purely diffuse surface, else a rough dielectric coat (Mitsuba ``roughplastic``, Beckmann
-    alpha, index 1.38) over the diffuse base. ``face_normals=False``: smooth vertex normals.
+    alpha, index 1.38) over the diffuse base; ``coat_colour``: the coat's (red, green, blue)
+    ``specular_reflectance``, a factor on its surface reflection alone (default 1: Mitsuba's;
+    0: the coat's diffuse base alone, what crossed polarisers see). ``face_normals=False``:
+    smooth vertex normals.
     """
     import mitsuba as mi
 
@@ -57,6 +60,8 @@ def render(z_um, pixel_um, lights, albedo, *, coat_roughness=None, spp=64, max_d
         else:
             bsdf = {"type": "roughplastic", "distribution": "beckmann", "alpha": coat_roughness, "int_ior": 1.38,
                     "diffuse_reflectance": {"type": "rgb", "value": list(albedo)}}
+            if coat_colour is not None:
+                bsdf["specular_reflectance"] = {"type": "rgb", "value": list(coat_colour)}
         half_w, half_h = columns * pixel_um * scale / 2, rows * pixel_um * scale / 2
         top = float(padded.max()) + 1.0
         images = []

@@ -107,6 +107,23 @@ def test_same_seed_same_images(optics):
     assert not np.array_equal(first["red"][0], other["red"][0])  # another capture seed, other images
 
 
+def test_a_repeat_capture_sees_the_same_skin_with_new_noise():
+    """Another capture seed is another sensor noise on the same skin: its albedo variation is
+    the skin's (it was the capture's, so repeats of one skin had different albedo maps), and
+    the first capture of a skin renders as it always did."""
+    surface = make_surface(preset_spec("forehead-low", size_px=48, pixel_um=30.0), seed=5)
+    quiet = default_settings(noise=0.0)
+    first, _ = simulate_acquisition(surface, quiet, seed=5)
+    same, _ = simulate_acquisition(surface, quiet, seed=5, skin_seed=5)
+    repeat, _ = simulate_acquisition(surface, quiet, seed=9, skin_seed=5)
+    other_skin, _ = simulate_acquisition(surface, quiet, seed=9)
+    np.testing.assert_array_equal(first["red"][0], same["red"][0])
+    np.testing.assert_allclose(repeat["red"][0], first["red"][0], rtol=1e-6)
+    assert np.abs(other_skin["red"][0] / first["red"][0] - 1).max() > 0.01  # another albedo map
+    noisy, _ = simulate_acquisition(surface, default_settings(), seed=9, skin_seed=5)
+    assert 0 < np.std(noisy["red"][0] - repeat["red"][0]) < 0.02
+
+
 @pytest.mark.slow
 def test_the_papers_effect_red_shallow_blue_deep():
     surface = make_surface(preset_spec("forehead-moderate", size_px=192, pixel_um=20.0), seed=1)

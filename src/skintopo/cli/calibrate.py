@@ -1,6 +1,8 @@
 """``skintopo calibrate lights``: light directions from spheres; ``skintopo calibrate leds``: a
 device's near-field LEDs from a chrome sphere at two or more places and a flat target;
-``skintopo calibrate skin``: skin's diffusion profile per band from a black mask's edge."""
+``skintopo calibrate skin``: skin's diffusion profile per band from a black mask's edge;
+``skintopo calibrate highlight``: the surface reflection's colour from a parallel- and a
+cross-polarised capture."""
 
 from __future__ import annotations
 
@@ -78,6 +80,23 @@ def run_skin(args):
     return 0
 
 
+def run_highlight(args):
+    from skintopo.acquisition import load_acquisition
+    from skintopo.calibration import specular_colour_from_polarised, write_specular_colour
+    from skintopo.outputs import check_output_file
+
+    check_output_file(args.out, overwrite=args.overwrite, inputs=[args.parallel, args.crossed])
+    parallel, crossed = (load_acquisition(path, bands=("red", "green", "blue")) for path in (args.parallel, args.crossed))
+    colour, record = specular_colour_from_polarised(parallel, crossed)
+    write_specular_colour(args.out, colour, record=record, source={"parallel": str(args.parallel), "crossed": str(args.crossed)})
+    if not args.quiet:
+        print(f"surface reflection colour (red, green, blue; mean 1): {colour[0]:.4f}, {colour[1]:.4f}, {colour[2]:.4f} "
+              f"from {record['observations']} observations (where it is strongest, "
+              f"{record['specular_share_of_parallel_light']:.1%} of the parallel capture's light)")
+        print(f"wrote {Path(args.out).resolve()} (give it to --specular-colour with --highlights cross-band)")
+    return 0
+
+
 def add_parser(commands):
     calibrate = commands.add_parser("calibrate", help="device calibration")
     calibrate_commands = calibrate.add_subparsers(dest="what", required=True, metavar="WHAT")
@@ -113,3 +132,11 @@ def add_parser(commands):
     skin.add_argument("-o", "--out", type=Path, required=True, help="diffusion-profile file to write (JSON)")
     shared.add_output_switches(skin)
     skin.set_defaults(handler=run_skin)
+    highlight = calibrate_commands.add_parser("highlight", help="the surface reflection's colour (for --specular-colour) from two "
+                                              "captures of the same skin, through parallel and through crossed polarisers")
+    highlight.add_argument("parallel", type=Path, help="acquisition through parallel polarisers (surface reflection passes)")
+    highlight.add_argument("crossed", type=Path, help="acquisition of the same skin, lights, exposure and pose through crossed "
+                           "polarisers (surface reflection blocked)")
+    highlight.add_argument("-o", "--out", type=Path, required=True, help="specular-colour file to write (JSON)")
+    shared.add_output_switches(highlight)
+    highlight.set_defaults(handler=run_highlight)

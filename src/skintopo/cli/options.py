@@ -71,7 +71,16 @@ percent_confidence = number_type(float, lambda v: 50 < v < 100, "a percentage be
 
 
 def specular_colour(text):
-    """An argparse type: three positive numbers ``R,G,B``."""
+    """An argparse type: three positive numbers ``R,G,B``, or a file of ``skintopo calibrate
+    highlight``."""
+    if "," not in text:
+        from skintopo.calibration import read_specular_colour
+        from skintopo.errors import SkinTopoError
+
+        try:
+            return read_specular_colour(text)
+        except SkinTopoError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
     parts = text.split(",")
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"expected three numbers R,G,B, got {text!r}")
@@ -140,9 +149,10 @@ def add_reconstruction_options(parser):
     parser.add_argument("--highlights", choices=HIGHLIGHT_MODES, default=DEFAULT_HIGHLIGHTS,
                         help="none (default): fit every observation the shadow and saturation rules keep; cross-band: leave out the "
                         "highlights found from red, green and blue together (helps opaque shiny surfaces and blue; see the docs)")
-    parser.add_argument("--specular-colour", type=specular_colour, default=None, metavar="R,G,B",
+    parser.add_argument("--specular-colour", type=specular_colour, default=None, metavar="R,G,B|FILE",
                         help="with --highlights cross-band: the surface reflection's relative strength in red, green and blue, "
-                        "e.g. from a parallel- minus a cross-polarised capture (default white: 1,1,1)")
+                        "or the file 'skintopo calibrate highlight' writes from a parallel- and a cross-polarised capture "
+                        "(default white: 1,1,1)")
     parser.add_argument("--integrator", choices=[AUTO_INTEGRATOR, *sorted(INTEGRATOR_NAMES)], default=DEFAULT_INTEGRATOR,
         help="normal integration (default auto: dct-poisson on a fully valid field, else least-squares over the valid pixels)")
 

@@ -35,7 +35,7 @@ from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.errors import SkinTopoError
 from skintopo.outputs import staged_output_folder, write_label_image
 from skintopo.optics import PROFILES, SkinOptics, optics_profile
-from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor, with_interreflection_radius
+from skintopo.synth.render import Effects, RenderSettings, default_lights, render_bands, sensor, skin_generator, with_interreflection_radius
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, Wrinkle, geometric_measures, make_surface
 
 __all__ = [
@@ -96,8 +96,11 @@ def preset_spec(name, *, size_px=256, pixel_um=20.0) -> SurfaceSpec:
     return SurfaceSpec(size_px=shape, pixel_um=float(pixel_um), wrinkles=tuple(built))
 
 
-def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None = None, seed=0, progress=iter):
+def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None = None, seed=0, progress=iter, skin_seed=None):
     """Render every band and pass it through the sensor (``progress`` wraps the bands' loop).
+
+    ``seed`` is the capture's (sensor noise); ``skin_seed`` (default: ``seed``) the skin's
+    albedo variation: a repeat capture of the same skin keeps the skin's seed.
 
     Returns
     -------
@@ -116,7 +119,8 @@ def simulate_acquisition(surface: SkinSurface, settings: RenderSettings | None =
     settings = with_interreflection_radius(settings, surface.spec.wrinkles)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
-    linear, info = render_bands(surface.height, surface.normals, settings, rng, progress, shift_um=surface.spec.shift_um)
+    linear, info = render_bands(surface.height, surface.normals, settings, rng, progress, shift_um=surface.spec.shift_um,
+                                skin_rng=skin_generator(seed, skin_seed))
     if settings.white_reference is not None:  # a flat Lambertian target: I = r l_z under each light
         reference = white_reference_box(surface.height.shape, settings.white_reference)
         rows, columns = reference.slices
@@ -223,12 +227,12 @@ def simulate_to_folder(out, spec: SurfaceSpec, settings: RenderSettings, *, seed
     capture_seed = seed if capture_seed is None else capture_seed
     if device is None:
         surface = make_surface(spec, seed=seed)
-        bands, info = simulate_acquisition(surface, settings, seed=capture_seed, progress=progress)
+        bands, info = simulate_acquisition(surface, settings, seed=capture_seed, progress=progress, skin_seed=seed)
     else:
         from skintopo.synth.nearfield import camera_grid_surface, device_surface, simulate_device_acquisition
 
         rendered = device_surface(spec, device, seed=seed)
-        images, info = simulate_device_acquisition(rendered, device, settings, seed=capture_seed)
+        images, info = simulate_device_acquisition(rendered, device, settings, seed=capture_seed, skin_seed=seed)
         surface = camera_grid_surface(rendered, device)
         bands = {band: (stack, device.central_directions()) for band, stack in images.items()}
     write_synthetic_acquisition(out, surface, bands, settings=settings, seed=seed, info=info, overwrite=overwrite,

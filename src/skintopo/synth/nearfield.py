@@ -29,7 +29,7 @@ import scipy.ndimage
 from skintopo.device import Device
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
-from skintopo.synth.render import NearLighting, RenderSettings, render_bands, sensor, with_interreflection_radius
+from skintopo.synth.render import NearLighting, RenderSettings, render_bands, sensor, skin_generator, with_interreflection_radius
 from skintopo.synth.surfaces import SkinSurface, SurfaceSpec, make_surface
 
 DEFAULT_MARGIN = 0.15  # the rendered grid is this fraction wider than the image on each side
@@ -105,8 +105,10 @@ def camera_sample_points(height: HeightMap, device: Device, iterations=12):
     return row, column, depth
 
 
-def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: RenderSettings | None = None, seed=0):
-    """Render a surface through a device (point LEDs, perspective camera) and the sensor.
+def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: RenderSettings | None = None, seed=0, skin_seed=None):
+    """Render a surface through a device (point LEDs, perspective camera) and the sensor
+    (``seed``: the capture's noise; ``skin_seed``, default ``seed``: the skin's albedo
+    variation, as :func:`skintopo.synth.simulate_acquisition`).
 
     Returns
     -------
@@ -121,7 +123,7 @@ def simulate_device_acquisition(surface: SkinSurface, device: Device, settings: 
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
     near = near_lighting(surface.height, device)
-    linear, info = render_bands(surface.height, surface.normals, settings, rng, near=near)
+    linear, info = render_bands(surface.height, surface.normals, settings, rng, near=near, skin_rng=skin_generator(seed, skin_seed))
     row, column, _ = camera_sample_points(surface.height, device)
     projected = {band: np.stack([scipy.ndimage.map_coordinates(image, [row, column], order=3, mode="nearest") for image in images])
                  for band, images in linear.items()}

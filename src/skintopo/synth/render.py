@@ -267,14 +267,23 @@ def pigmentation_maps(shape, pixel, base_albedo, pigmentation: Pigmentation, shi
     return melanin, haemoglobin, np.full(shape, float(baseline0))
 
 
-def _albedo_maps(shape, pixel, base, vary, rng):
+def _albedo_maps(shape, pixel, base, vary, rng, shift_um=(0.0, 0.0)):
     if not vary:
         return {band: np.full(shape, value) for band, value in base.items()}
-    variation = 1 + ALBEDO_VARIATION * np.clip(_smooth_field(shape, 200.0 / pixel, rng), -3, 3)
+    shift_px = (shift_um[0] / pixel, shift_um[1] / pixel)
+    variation = 1 + ALBEDO_VARIATION * np.clip(_smooth_field(shape, 200.0 / pixel, rng, shift_px), -3, 3)
     return {band: value * variation for band, value in base.items()}
 
 
-def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, *, near: NearLighting | None = None, shift_um=(0.0, 0.0)):
+def skin_generator(seed, skin_seed):
+    """The skin's own generator when a capture's ``seed`` differs from its ``skin_seed``, else
+    None: the capture's generator then draws the skin's albedo variation first, as a capture
+    always has (the renders of the default case are unchanged)."""
+    return None if skin_seed is None or skin_seed == seed else np.random.default_rng(skin_seed)
+
+
+def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, *, near: NearLighting | None = None, shift_um=(0.0, 0.0),
+                 skin_rng=None):
     """Linear images per band, before the sensor: dict band -> (m, rows, columns), on the
     height field's grid.
 
@@ -283,7 +292,9 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     LEDs and the view is a perspective camera's (``settings.lights`` is then not used); the
     images are still on the height field's grid (:mod:`skintopo.synth.nearfield` projects
     them into the camera). ``shift_um``: where the field lies on the skin (the pigmentation
-    maps follow it).
+    maps follow it). ``skin_rng``: the generator of the skin's own albedo variation, for a
+    repeat capture of the same skin (its noise from ``rng``; the map follows ``shift_um``);
+    default ``rng`` (the map of an unshifted field, as always).
     """
     z = np.asarray(height.z, dtype=float)
     pixel = height.spacing[1]
@@ -291,6 +302,8 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     optics = settings.optics
     if settings.pigmentation is None:
         albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
+        if skin_rng is not None:  # the skin's map; the capture's generator drew the same numbers, so its noise is unchanged
+            albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, skin_rng, shift_um)
     else:
         melanin, haemoglobin, baseline = pigmentation_maps(z.shape, pixel, optics.albedo[settings.skin], settings.pigmentation, shift_um)
         albedo = forward_reflectance(melanin, haemoglobin, baseline)
