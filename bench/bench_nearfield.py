@@ -20,7 +20,9 @@ Run from bench/: ``python bench_nearfield.py [--size N] [--effects lambertian|sk
 ``--mitsuba`` runs the comparison on Mitsuba 3 renders instead (nearfield-mitsuba-SIZE.json);
 ``--per-effect`` scores ideal and near-field with each of the skin's effects alone (and the
 highlights with the cross-band separation, the same with the profile's true specular colour
-given, and removed exactly), to find which one makes the near-field gap
+given, the colour calibrated from a simulated cross-polarised repeat capture
+(:func:`skintopo.calibration.specular_colour_from_differences`), and removed exactly), to find
+which one makes the near-field gap
 (nearfield-SIZE-per-effect[-OPTICS].json).
 ``--physics`` scores the physics height through the device against the same skin under
 ideal lights (nearfield-SIZE-physics[-OPTICS].json).
@@ -38,6 +40,7 @@ import numpy as np
 import scipy.ndimage
 from _results import write_result  # bench/_results.py (scripts run from bench/)
 
+from skintopo.calibration import specular_colour_from_differences
 from skintopo.defaults import DEFAULT_SKIN_OPTICS
 from skintopo.device import paper_device
 from skintopo.filters import polynomial_form, sphere_fit
@@ -121,6 +124,7 @@ def per_effect(size, optics_name=None):
     cases += [("highlights", alone["highlights"], "cross-band"), ("highlights", alone["highlights"], "cross-band, colour given"),
               ("skin (all but interreflection)", EFFECTS["skin"], "cross-band"),
               ("skin (all but interreflection)", EFFECTS["skin"], "cross-band, colour given"),
+              ("skin (all but interreflection)", EFFECTS["skin"], "cross-band, colour calibrated"),
               ("skin (all but interreflection)", EFFECTS["skin"], "removed exactly")]
     rows = []
     for name, effects, highlights in cases:
@@ -134,13 +138,25 @@ def per_effect(size, optics_name=None):
             red = red["red"] * info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
             ideal_red, diffuse_info = simulate_acquisition(crop, replace(diffuse, lights=lights), seed=1)
             ideal_red = ideal_red["red"][0] * ideal_info["exposure_gain"]["red"] / diffuse_info["exposure_gain"]["red"]
+        colours = [None, None]
+        if highlights.endswith("colour given"):
+            colours = [fresnel_colour(optics)] * 2
+        elif highlights.endswith("colour calibrated"):  # from a cross-polarised repeat capture (the same skin, other noise)
+            crossed = replace(settings, effects=replace(effects, specular=False))
+            crossed_bands, crossed_info = simulate_device_acquisition(surface, device, crossed, seed=2, skin_seed=1)
+            crossed_ideal, crossed_ideal_info = simulate_acquisition(crop, replace(crossed, lights=lights), seed=2, skin_seed=1)
+            colours = [specular_colour_from_differences({b: bands[b] / info["exposure_gain"][b] for b in RGB},
+                                                        {b: crossed_bands[b] / crossed_info["exposure_gain"][b] for b in RGB})[0],
+                       specular_colour_from_differences({b: ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB},
+                                                        {b: crossed_ideal[b][0] / crossed_ideal_info["exposure_gain"][b] for b in RGB})[0]]
         if highlights.startswith("cross-band"):
-            colour = fresnel_colour(optics) if highlights.endswith("colour given") else None
-            red = red_without_specular(bands, info["exposure_gain"], colour)
-            ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"], colour)
+            red = red_without_specular(bands, info["exposure_gain"], colours[0])
+            ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"], colours[1])
         ideal = distant_reconstruction(ideal_red, lights, truth.spacing)
         near = near_field_photometric_stereo(red, device, "red")
         row = {"effect": name, "highlights": highlights, "photometric_scale_of_working_distance": near.scales[-1]}
+        if highlights.endswith("colour calibrated"):
+            row["calibrated_colour"] = {"near_field": list(colours[0]), "ideal": list(colours[1])}
         for key, height in (("ideal", ideal), ("near_field", near.height)):
             row[key] = scores(height, truth)
             row[key]["after_form_longer_than_2.6mm_um"], row[key]["after_form_shorter_um"] = split_after_form(height, truth)

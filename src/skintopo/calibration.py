@@ -481,12 +481,22 @@ def specular_colour_from_polarised(parallel, crossed, *, top_share=SPECULAR_TOP_
             raise SkinTopoError(f"{names}: the {band} images were not taken under the same lights ({len(one.images)} and "
                                 f"{len(other.images)} images): the two captures must use the same lights, in the same order")
     inside = parallel.mask & crossed.mask
-    difference = np.stack([parallel.bands[b].images[:, inside] - crossed.bands[b].images[:, inside] for b in BANDS]).reshape(3, -1)
-    level = np.stack([parallel.bands[b].images[:, inside] for b in BANDS]).reshape(3, -1).mean(axis=0)
+    return specular_colour_from_differences({b: parallel.bands[b].images[:, inside] for b in BANDS},
+                                            {b: crossed.bands[b].images[:, inside] for b in BANDS}, top_share=top_share, name=names)
+
+
+def specular_colour_from_differences(parallel, crossed, *, top_share=SPECULAR_TOP_SHARE, name="the captures"):
+    """:func:`specular_colour_from_polarised` on arrays: ``parallel`` and ``crossed`` map red,
+    green and blue to observations of the same shape (any), each light's relative intensity
+    divided out; NaN: left out. ``name`` names the captures in errors. Returns (colour,
+    record) as that function."""
+    difference = np.stack([np.asarray(parallel[b], dtype=np.float64) - np.asarray(crossed[b], dtype=np.float64) for b in BANDS])
+    difference = difference.reshape(3, -1)
+    level = np.stack([np.asarray(parallel[b], dtype=np.float64) for b in BANDS]).reshape(3, -1).mean(axis=0)
     usable = np.isfinite(difference).all(axis=0) & np.isfinite(level)
     difference, level = difference[:, usable], level[usable]
     if difference.shape[1] < 100:
-        raise SkinTopoError(f"{names}: fewer than 100 observations unsaturated in every band inside both masks")
+        raise SkinTopoError(f"{name}: fewer than 100 observations unsaturated in every band inside both masks")
     mean = difference.mean(axis=0)
     strongest = mean >= np.quantile(mean, 1 - top_share)
     # the noise of two captures is symmetric: the most negative differences show how far it reaches
@@ -495,11 +505,11 @@ def specular_colour_from_polarised(parallel, crossed, *, top_share=SPECULAR_TOP_
     if signal < SPECULAR_OVER_NOISE * max(opposite, 0.0):
         hint = ("the crossed capture is the brighter one: are the two swapped?" if opposite >= SPECULAR_OVER_NOISE * max(signal, 0.0)
                 else "are the polarisers parallel in the first capture and crossed in the second?")
-        raise SkinTopoError(f"{names}: no surface reflection found: the largest differences parallel minus crossed ({signal:.3g}) are "
+        raise SkinTopoError(f"{name}: no surface reflection found: the largest differences parallel minus crossed ({signal:.3g}) are "
                             f"not {SPECULAR_OVER_NOISE:g}x the largest opposite ones ({opposite:.3g}: the two captures' noise); {hint}")
     totals = difference.sum(axis=1)
     if not (totals > 0).all():
-        raise SkinTopoError(f"{names}: the difference is not positive in every band ({dict(zip(BANDS, totals.round(6).tolist()))}): "
+        raise SkinTopoError(f"{name}: the difference is not positive in every band ({dict(zip(BANDS, totals.round(6).tolist()))}): "
                             "the captures differ by more than the surface reflection (exposure, pose or lights changed?)")
     colour = totals / totals.mean()
     ratios = difference[:, strongest] / mean[strongest]  # their spread: how well one colour describes them
@@ -517,19 +527,25 @@ def write_specular_colour(path, colour, *, record=None, source=None):
                                    "source": source, "fit": record})
 
 
-def read_specular_colour(path):
-    """The (red, green, blue) colour of a file of :func:`write_specular_colour`; a clear
-    error naming the file otherwise."""
+def _read_calibration_file(path, file_format, what, command):
+    """The JSON object of a calibration file of ``file_format``; a clear error naming the file
+    (and the ``command`` that writes one) otherwise."""
     import json
 
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as error:
-        raise SkinTopoError(f"{path}: cannot read a specular colour ({error})") from None
-    if not isinstance(data, dict) or data.get("format") != SPECULAR_COLOUR_FORMAT:
-        raise SkinTopoError(f"{path}: not a specular-colour file (format {SPECULAR_COLOUR_FORMAT!r} expected; "
-                            "write one with 'skintopo calibrate highlight')")
+        raise SkinTopoError(f"{path}: cannot read {what} ({error})") from None
+    if not isinstance(data, dict) or data.get("format") != file_format:
+        raise SkinTopoError(f"{path}: not a {what} file (format {file_format!r} expected; write one with 'skintopo {command}')")
+    return data
+
+
+def read_specular_colour(path):
+    """The (red, green, blue) colour of a file of :func:`write_specular_colour`; a clear
+    error naming the file otherwise."""
+    data = _read_calibration_file(path, SPECULAR_COLOUR_FORMAT, "specular-colour", "calibrate highlight")
     try:
         return checked_specular_colour(data.get("specular_colour"))
     except SkinTopoError as error:
@@ -629,16 +645,8 @@ def write_diffusion_profiles(path, profiles, *, pixel_um, records=None, source=N
 def read_diffusion_profiles(path):
     """band -> :class:`~skintopo.optics.ScatteringProfile` from a file of
     :func:`write_diffusion_profiles`; a clear error naming the file otherwise."""
-    import json
-
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as error:
-        raise SkinTopoError(f"{path}: cannot read diffusion profiles ({error})") from None
-    if not isinstance(data, dict) or data.get("format") != DIFFUSION_FORMAT:
-        raise SkinTopoError(f"{path}: not a diffusion-profile file (format {DIFFUSION_FORMAT!r} expected; "
-                            "write one with 'skintopo calibrate skin')")
+    data = _read_calibration_file(path, DIFFUSION_FORMAT, "diffusion-profile", "calibrate skin")
     bands = data.get("bands") or {}
     missing = [band for band in BANDS if band not in bands]
     if missing:

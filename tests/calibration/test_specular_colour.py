@@ -95,4 +95,4 @@ def test_bad_pairs_get_clear_errors_and_no_file(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["reconstruct", str(parallel), "-o", str(tmp_path / "h"), "--highlights", "cross-band", "--specular-colour",
               str(tmp_path / "missing.json")])
-    assert "cannot read a specular colour" in capsys.readouterr().err
+    assert "cannot read specular-colour" in capsys.readouterr().err
