@@ -10,7 +10,8 @@ two repeats (``compare.detection_limits``, 99% confidence; also from the first r
 Reported: per parameter, the share of trials in which the unchanged follow-up is flagged
 (issue 17: at most 5% for every parameter); the share in which the treated wrinkle's max and
 mean depth are flagged (at least 95%); untouched wrinkles flagged in the treated follow-up.
-Usage: python bench_change_detection.py [TRIALS]. Results: bench/results/change_detection.json.
+Usage: python bench_change_detection.py [TRIALS]. Results: bench/results/change_detection.json
+(50 trials, the issue's count), change_detection-TRIALS.json otherwise.
 """
 
 import dataclasses
@@ -87,7 +88,7 @@ def main(n):
             "untouched_wrinkle_measures_flagged_in_treated": float(np.mean(untouched)) if untouched else None,
         }
     result["treated_max_depth_change_percent"] = [t["treated_change_percent"] for t in trials]
-    write_result("change_detection", result)
+    write_result("change_detection" if n == 50 else f"change_detection-{n}", result)
 
 
 if __name__ == "__main__":

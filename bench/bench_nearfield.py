@@ -25,7 +25,8 @@ given, the colour calibrated from a simulated cross-polarised repeat capture
 which one makes the near-field gap
 (nearfield-SIZE-per-effect[-OPTICS].json).
 ``--physics`` scores the physics height through the device against the same skin under
-ideal lights (nearfield-SIZE-physics[-OPTICS].json).
+ideal lights, with highlights also on the cross-band diffuse images, white or of the colour
+calibrated from a cross-polarised repeat capture (nearfield-SIZE-physics[-OPTICS].json).
 ``--optics NAME`` renders with that skin-optics profile (default: the simulator's, default-v1).
 Results: bench/results/nearfield.json (size 1000, lambertian) or nearfield-SIZE-EFFECTS[-cross-band][-OPTICS].json.
 """
@@ -110,6 +111,18 @@ def fresnel_colour(optics):
     return [float(fresnel_dielectric(1.0, optics.fresnel_index[b])) for b in RGB]
 
 
+def calibrated_colours(surface, device, crop, settings, near_images, ideal_images):
+    """The surface reflection's colour measured as ``skintopo calibrate highlight`` does, from
+    a cross-polarised repeat capture (the same skin rendered without surface reflection, other
+    sensor noise) beside each capture (band -> images in exposure-divided units): (near-field,
+    ideal)."""
+    crossed = replace(settings, effects=replace(settings.effects, specular=False))
+    near, near_info = simulate_device_acquisition(surface, device, crossed, seed=2, skin_seed=1)
+    ideal, ideal_info = simulate_acquisition(crop, replace(crossed, lights=device.central_directions()), seed=2, skin_seed=1)
+    return (specular_colour_from_differences(near_images, {b: near[b] / near_info["exposure_gain"][b] for b in RGB})[0],
+            specular_colour_from_differences(ideal_images, {b: ideal[b][0] / ideal_info["exposure_gain"][b] for b in RGB})[0])
+
+
 def per_effect(size, optics_name=None):
     """Ideal and near-field red heights with one effect of the skin profile at a time."""
     optics = optics_profile(optics_name or DEFAULT_SKIN_OPTICS)
@@ -141,14 +154,9 @@ def per_effect(size, optics_name=None):
         colours = [None, None]
         if highlights.endswith("colour given"):
             colours = [fresnel_colour(optics)] * 2
-        elif highlights.endswith("colour calibrated"):  # from a cross-polarised repeat capture (the same skin, other noise)
-            crossed = replace(settings, effects=replace(effects, specular=False))
-            crossed_bands, crossed_info = simulate_device_acquisition(surface, device, crossed, seed=2, skin_seed=1)
-            crossed_ideal, crossed_ideal_info = simulate_acquisition(crop, replace(crossed, lights=lights), seed=2, skin_seed=1)
-            colours = [specular_colour_from_differences({b: bands[b] / info["exposure_gain"][b] for b in RGB},
-                                                        {b: crossed_bands[b] / crossed_info["exposure_gain"][b] for b in RGB})[0],
-                       specular_colour_from_differences({b: ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB},
-                                                        {b: crossed_ideal[b][0] / crossed_ideal_info["exposure_gain"][b] for b in RGB})[0]]
+        elif highlights.endswith("colour calibrated"):
+            colours = calibrated_colours(surface, device, crop, settings, {b: bands[b] / info["exposure_gain"][b] for b in RGB},
+                                         {b: ideal_bands[b][0] / ideal_info["exposure_gain"][b] for b in RGB})
         if highlights.startswith("cross-band"):
             red = red_without_specular(bands, info["exposure_gain"], colours[0])
             ideal_red = red_without_specular({b: ideal_bands[b][0] for b in RGB}, ideal_info["exposure_gain"], colours[1])
@@ -220,11 +228,13 @@ def physics_check(size, optics_name=None):
         ideal = {b: ideal[b][0] / ideal_info["exposure_gain"][b] for b in RGB}
         variants = [("none", bands, ideal)]
         if effects.specular:
-            separated = []
-            for images in (bands, ideal):
-                separation = separate_specular(*(images[b] for b in RGB))  # once per capture, not per band
-                separated.append({b: images[b] - separation.band_specular(b) for b in RGB})
-            variants.append(("cross-band", *separated))
+            for highlights, colours in (("cross-band", (None, None)),
+                                        ("cross-band, colour calibrated", calibrated_colours(surface, device, crop, settings, bands, ideal))):
+                separated = []
+                for images, colour in zip((bands, ideal), colours):
+                    separation = separate_specular(*(images[b] for b in RGB), specular_colour=colour)  # once per capture, not per band
+                    separated.append({b: images[b] - separation.band_specular(b) for b in RGB})
+                variants.append((highlights, *separated))
         for highlights, near_images, ideal_images in variants:
             row = {"effects": name, "highlights": highlights, "ideal": {}, "near_field": {}}
             start = None
@@ -232,7 +242,7 @@ def physics_check(size, optics_name=None):
                 row["ideal"][band] = scores(distant_reconstruction(ideal_images[band], lights, truth.spacing), truth)
                 start = near_field_photometric_stereo(near_images[band], device, band, start=start)
                 row["near_field"][band] = scores(start.height, truth)
-            lobe = highlights == "none"
+            lobe = highlights == "none"  # on the cross-band diffuse images physics' own lobe is off
             begun = time.perf_counter()
             found = physics_height(ideal_images, lights, truth.spacing, highlights=lobe)
             row["ideal"]["physics"] = scores(found.height, truth) | {"seconds": time.perf_counter() - begun, "changes": found.changes}
