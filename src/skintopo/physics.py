@@ -85,7 +85,8 @@ where there is no scattering (Mitsuba forehead-high: w 0.8-0.95). The
 iteration often stops at its pass limit before the 2% tolerance (reported). Through a device
 (:func:`near_field_physics_height`) the height matches the ideal device's on skin without
 highlights, and falls short of it with highlights (35.5 um with its own lobe, 7.1 um on the
-cross-band diffuse images, 1000 px; docs, "The real device").
+cross-band diffuse images with the highlight taken as white, 0.44 um with its colour measured
+by ``skintopo calibrate highlight``; 1000 px; docs, "The real device").
 """
 
 from __future__ import annotations
