@@ -18,7 +18,7 @@ from skintopo.texture import measure_texture, parameters_by_name
 
 def visit(spec, noise_seed):
     surface = make_surface(spec, seed=5)
-    bands, _ = simulate_acquisition(surface, default_settings(), seed=noise_seed)
+    bands, _ = simulate_acquisition(surface, default_settings(), seed=noise_seed, skin_seed=5)  # the same skin, its noise
     stereo = photometric_stereo(*bands["white"])
     return integrate_normals(stereo.normals, spec.pixel_um, mask=stereo.valid)
 

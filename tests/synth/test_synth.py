@@ -1,5 +1,7 @@
 """The simulator: exact ground truth, closed-form radiosity checks, the paper's effect."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -122,6 +124,11 @@ def test_a_repeat_capture_sees_the_same_skin_with_new_noise():
     assert np.abs(other_skin["red"][0] / first["red"][0] - 1).max() > 0.01  # another albedo map
     noisy, _ = simulate_acquisition(surface, default_settings(), seed=9, skin_seed=5)
     assert 0 < np.std(noisy["red"][0] - repeat["red"][0]) < 0.02
+    # a later visit of the field moved on the skin: the albedo map moves with it, in a first capture as in a repeat
+    moved = make_surface(dataclasses.replace(preset_spec("forehead-low", size_px=48, pixel_um=30.0), shift_um=(60.0, -30.0)), seed=5)
+    moved_first, _ = simulate_acquisition(moved, quiet, seed=5)
+    moved_repeat, _ = simulate_acquisition(moved, quiet, seed=9, skin_seed=5)
+    np.testing.assert_allclose(moved_repeat["red"][0], moved_first["red"][0], rtol=1e-6)
 
 
 @pytest.mark.slow

@@ -292,18 +292,19 @@ def render_bands(height, normals, settings: RenderSettings, rng, progress=iter, 
     LEDs and the view is a perspective camera's (``settings.lights`` is then not used); the
     images are still on the height field's grid (:mod:`skintopo.synth.nearfield` projects
     them into the camera). ``shift_um``: where the field lies on the skin (the pigmentation
-    maps follow it). ``skin_rng``: the generator of the skin's own albedo variation, for a
-    repeat capture of the same skin (its noise from ``rng``; the map follows ``shift_um``);
-    default ``rng`` (the map of an unshifted field, as always).
+    maps and the albedo variation follow it). ``skin_rng``: the generator of the skin's own
+    albedo variation, for a repeat capture of the same skin (its noise from ``rng``); default
+    ``rng``.
     """
     z = np.asarray(height.z, dtype=float)
     pixel = height.spacing[1]
     effects = settings.effects
     optics = settings.optics
     if settings.pigmentation is None:
-        albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, rng)
-        if skin_rng is not None:  # the skin's map; the capture's generator drew the same numbers, so its noise is unchanged
-            albedo = _albedo_maps(z.shape, pixel, optics.albedo[settings.skin], effects.albedo_variation, skin_rng, shift_um)
+        base = optics.albedo[settings.skin]
+        if skin_rng is not None:  # the capture's generator still draws what a first capture's map draws: its noise stays its seed's
+            _albedo_maps(z.shape, pixel, base, effects.albedo_variation, rng)
+        albedo = _albedo_maps(z.shape, pixel, base, effects.albedo_variation, rng if skin_rng is None else skin_rng, shift_um)
     else:
         melanin, haemoglobin, baseline = pigmentation_maps(z.shape, pixel, optics.albedo[settings.skin], settings.pigmentation, shift_um)
         albedo = forward_reflectance(melanin, haemoglobin, baseline)
