@@ -10,7 +10,7 @@ from skintopo.errors import SkinTopoError
 from skintopo.height import integrate_normals
 from skintopo.heightmap import HeightMap
 from skintopo.normals import photometric_stereo
-from skintopo.registration import apply_registration
+from skintopo.registration import register_height_maps
 from skintopo.results import comparison_rows
 from skintopo.synth import default_settings, make_surface, preset_spec, simulate_acquisition
 from skintopo.texture import measure_texture, parameters_by_name
@@ -48,16 +48,16 @@ def test_treatment_of_one_wrinkle_is_detected_and_repeats_are_near_zero():
     assert rows["wrinkle2.max_depth_um"]["detectable"] and rows["wrinkle2.mean_depth_um"]["detectable"]
     for wrinkle_id in (1, 3):
         assert not any(rows[f"wrinkle{wrinkle_id}.{name}"]["detectable"] for name in ("max_depth_um", "mean_depth_um", "length_mm"))
-    # 2 repeats x 3 wrinkles pooled: 6 degrees of freedom per wrinkle measure, 2 per texture parameter (warned)
-    assert limits.degrees_of_freedom["wrinkle1.max_depth_um"] == 6 and limits.degrees_of_freedom["Sa"] == 2 and limits.warnings
+    # 2 repeats: 2 degrees of freedom per parameter, wrinkle measures too (warned)
+    assert limits.degrees_of_freedom["wrinkle1.max_depth_um"] == 2 and limits.degrees_of_freedom["Sa"] == 2 and limits.warnings
     print("smallest detectable change of max depth (um):", {k: round(v, 2) for k, v in limits.limits.items() if k.endswith("max_depth_um")})
 
 
 def test_detection_limits_are_student_prediction_limits_of_repeat_differences():
     """The formula against numbers worked by hand. Texture differences 1 and -2 (nu = 2):
     s_r^2 = (1 + 4) / 4, limit = t_(0.975, 2) sqrt(2) s_r. Two wrinkles of 100 and 50 um max
-    depth, changed by +2%, -2% in one repeat and -2%, +2% in the other: relative differences
-    pooled (nu = 4), s_rel^2 = 4 x 0.02^2 / 8, limit = t_(0.975, 4) sqrt(2) s_rel x baseline."""
+    depth, changed by +2, -1 um in one repeat and -2, +1 um in the other: each wrinkle on its
+    own (nu = 2), s_r^2 = (4 + 4) / 4 and (1 + 1) / 4."""
     def record(before, after):
         return {"baseline": before, "follow_up": after, "change": after - before, "change_percent": 100 * (after - before) / before}
 
@@ -68,10 +68,9 @@ def test_detection_limits_are_student_prediction_limits_of_repeat_differences():
     limits = detection_limits([repeat(1.0, [(100.0, 102.0), (50.0, 49.0)]), repeat(-2.0, [(100.0, 98.0), (50.0, 51.0)])],
                               confidence=0.95)
     assert limits.limits["Sa"] == pytest.approx(4.302653 * np.sqrt(2) * np.sqrt(5 / 4), rel=1e-6)
-    s_rel = np.sqrt(4 * 0.02**2 / 8)
-    assert limits.limits["wrinkle1.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 100, rel=1e-6)
-    assert limits.limits["wrinkle2.max_depth_um"] == pytest.approx(2.776445 * np.sqrt(2) * s_rel * 50, rel=1e-6)
-    assert limits.degrees_of_freedom == {"Sa": 2, "wrinkle1.max_depth_um": 4, "wrinkle2.max_depth_um": 4}
+    assert limits.limits["wrinkle1.max_depth_um"] == pytest.approx(4.302653 * np.sqrt(2) * np.sqrt(8 / 4), rel=1e-6)
+    assert limits.limits["wrinkle2.max_depth_um"] == pytest.approx(4.302653 * np.sqrt(2) * np.sqrt(2 / 4), rel=1e-6)
+    assert limits.degrees_of_freedom == {"Sa": 2, "wrinkle1.max_depth_um": 2, "wrinkle2.max_depth_um": 2}
     assert "2 repeat pair(s): 2 degree(s) of freedom for some parameters" in limits.warnings[0]
     assert "(t factor 4.3 instead of 1.96)" in limits.warnings[0]  # t_(0.975, 2) = 4.303, the normal quantile 1.960
     assert limits.as_dict() == {"confidence": 0.95, "repeat_pairs": 2, "warnings": list(limits.warnings),
@@ -112,10 +111,10 @@ def test_compare_visits_on_exact_heights_of_a_treated_wrinkle():
     assert comparison.albedo_residual_px < 0.1 and comparison.aligned_albedo.shape == albedo[0].shape
     assert comparison.baseline_wrinkles.totals["count"] == 3 and comparison.follow_up_wrinkles.totals["count"] == 3
     # texture on the overlap alone: the baseline's Sa over the points the registered follow-up covers
-    aligned = apply_registration(follow_up.height.z, comparison.registration)
-    overlap = HeightMap(baseline.height.z, baseline.height.spacing, np.isfinite(aligned))
+    aligned, _ = register_height_maps(baseline.height, follow_up.height)
+    overlap = HeightMap(baseline.height.z, baseline.height.spacing, aligned.mask)
     assert comparison.texture["Sa"]["baseline"] == pytest.approx(parameters_by_name(measure_texture(overlap))["Sa"], rel=1e-9)
-    assert np.isnan(comparison.difference[~np.isfinite(aligned)]).all()
+    assert np.isnan(comparison.difference[~aligned.mask]).all()
     strict = compare_visits(baseline.height, follow_up.height, segmentation_options={"min_depth_um": 500.0})
     assert strict.wrinkles == {} and strict.totals["count"]["baseline"] == 0
     with pytest.raises(SkinTopoError, match="the baseline albedo image is \\(10, 10\\), its height map \\(200, 200\\): they must match"):
