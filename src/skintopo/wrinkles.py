@@ -768,7 +768,8 @@ class WrinkleProperties:
 
 def wrinkle_properties(height: HeightMap, segmentation: WrinkleSegmentation, **settings) -> list:
     """The :class:`WrinkleProperties` of every measurable wrinkle (one with a centre line at
-    half depth), numbered 1..n by their centroids, top to bottom then left to right
+    half depth and a max depth of at least the segmentation's ``min_depth_um``), numbered
+    1..n by their centroids, top to bottom then left to right
     (``settings``: those of :class:`WrinkleSettings`)."""
     settings = WrinkleSettings(**settings)
     if segmentation.count == 0 and segmentation.labels.shape == height.shape:
@@ -780,8 +781,14 @@ def wrinkle_properties(height: HeightMap, segmentation: WrinkleSegmentation, **s
     # every wrinkle is measured whole by one thread, in the same order of operations as alone.
     # Four on two cores: a wrinkle is the unit of work, and with two threads the last of an odd
     # few ran alone on one core (a 1024^2 forehead's 3 wrinkles: 0.305 -> 0.260 s, medians of 4)
+    # A segmented valley whose max depth (this module's, from the geometry) is below the
+    # segmentation's minimum depth is not a wrinkle: the band-pass and the straight-valley
+    # closings only propose candidates. bench_wrinkles (seeds 0-479): microrelief fields
+    # without a false wrinkle 92.7% -> 95.8%, every detectable wrinkle still found; the false
+    # ones were narrow furrows reading 5-25 um.
+    minimum = segmentation.parameters.get("min_depth_um", 0.0)
     with ThreadPoolExecutor(max_workers=4) as pool:
-        measurable = [w for w, keep in zip(wrinkles, pool.map(lambda w: w.measurable, wrinkles)) if keep]
+        measurable = [w for w, keep in zip(wrinkles, pool.map(lambda w: w.measurable and w.max_depth_um >= minimum, wrinkles)) if keep]
     return [w.numbered(number) for number, w in enumerate(measurable, 1)]
 
 

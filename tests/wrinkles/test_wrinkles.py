@@ -292,3 +292,23 @@ def test_any_labelled_region_is_measured_or_left_out_never_an_error():
         measures = measure_wrinkles(height, segmentation_from_labels(labels, height.spacing))
         for wrinkle in measures.wrinkles:
             assert np.isfinite(wrinkle.max_depth_um) and wrinkle.mean_depth_um <= wrinkle.max_depth_um
+
+
+def test_a_valley_shallower_than_the_minimum_depth_is_not_a_wrinkle():
+    """The segmentation only proposes candidates; a wrinkle is one whose max depth (from the
+    geometry, this module's) reaches the segmentation's minimum depth. A 60 um deep wrinkle
+    reads about 60 um: kept at a minimum of 55 um, left out at 65 um. Labels given by hand
+    (no minimum depth) are measured whatever their depth."""
+    wrinkle = Wrinkle(depth_um=60.0, width_um=500.0, length_um=4000.0, orientation_deg=5.0, shape="U")
+    surface = make_surface(SurfaceSpec(size_px=(256, 256), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
+    segmentation = segment_wrinkles(surface.height)
+    depth = measure_wrinkles(surface.height, segmentation).wrinkles[0].max_depth_um
+    assert depth == pytest.approx(60.0, rel=0.03)
+    for minimum, count in ((55.0, 1), (65.0, 0)):
+        stricter = dataclasses.replace(segmentation, parameters={**segmentation.parameters, "min_depth_um": minimum})
+        measures = measure_wrinkles(surface.height, stricter)
+        assert len(measures.wrinkles) == count and measures.totals["count"] == count
+        assert (measures.labels > 0).any() == bool(count)
+    from skintopo.segmentation import segmentation_from_labels
+
+    assert len(measure_wrinkles(surface.height, segmentation_from_labels(segmentation.labels, surface.height.spacing)).wrinkles) == 1
