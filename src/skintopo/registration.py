@@ -164,7 +164,7 @@ def _warp_height(moving: HeightMap, shift, angle_deg, scale, spacing):
     a follow-up's wrinkles read shallower and wider than the unmoved baseline's (100 simulated
     repeat pairs of 3 wrinkles, 20 um pixels, shifts of up to 2 px: mean change of max and mean
     depth -0.05 to -0.37%, of width +0.12 to +0.23%; 50 of those pairs again with the spline:
-    -0.08 to +0.13% and -0.09 to +0.07%, and the RMS change lower for 15 of the 18 wrinkle
+    -0.12 to +0.10% and -0.09 to +0.07%, and the RMS change lower for 16 of the 18 wrinkle
     measures). The spline's prefilter reads the whole map, so the pixels without data
     are first given their nearest valid height: a point beside a hole also reads it through the
     spline's outer samples, each of which weighs at most 0.13; requiring all
