@@ -160,16 +160,19 @@ def register_height_maps(reference: HeightMap, moving: HeightMap, *, rotation=Tr
 def _warp_height(moving: HeightMap, shift, angle_deg, scale, spacing):
     """The moving height map resampled by cubic B-spline interpolation (SciPy's
     ``affine_transform``, order 3), valid where the 2 x 2 samples around each point are (as
-    bilinear resampling had it). Bilinear interpolation smooths: at a half-pixel shift it averages two samples, so
-    a follow-up's wrinkles read shallower and wider than the unmoved baseline's (100 simulated
+    bilinear resampling had it).
+
+    Bilinear interpolation smooths: at a half-pixel shift it averages two samples, so a
+    follow-up's wrinkles read shallower and wider than the unmoved baseline's (100 simulated
     repeat pairs of 3 wrinkles, 20 um pixels, shifts of up to 2 px: mean change of max and mean
     depth -0.05 to -0.37%, of width +0.12 to +0.23%; 50 of those pairs again with the spline:
     -0.12 to +0.10% and -0.09 to +0.07%, and the RMS change lower for 16 of the 18 wrinkle
-    measures). The spline's prefilter reads the whole map, so the pixels without data
-    are first given their nearest valid height: a point beside a hole also reads it through the
-    spline's outer samples, each of which weighs at most 0.13; requiring all
-    4 x 4 samples valid instead widened every hole of a reconstruction (scattered invalid pixels
-    in shadowed wrinkle floors) and moved its wrinkles' max depth by up to 1 um."""
+    measures). The spline's prefilter reads the whole map, so the pixels without data are
+    first given their nearest valid height: a point beside a hole also reads it through the
+    spline's outer samples, each of which weighs at most 0.13. Requiring all 4 x 4 samples
+    valid instead widened every hole of a reconstruction (scattered invalid pixels in shadowed
+    wrinkle floors) and moved its wrinkles' max depth by up to 1 um.
+    """
     filled = moving.z
     if not moving.mask.all():
         filled = filled[tuple(scipy.ndimage.distance_transform_edt(~moving.mask, return_distances=False, return_indices=True))]
