@@ -794,7 +794,8 @@ def wrinkle_properties(height: HeightMap, segmentation: WrinkleSegmentation, **s
 
 def wrinkle_table(height: HeightMap, segmentation: WrinkleSegmentation, properties=WRINKLE_COLUMNS, **settings) -> dict:
     """Chosen measures of every wrinkle as columns, ``{name: array}`` (the model is
-    scikit-image's ``regionprops_table``); only what they need is computed. ``properties``:
+    scikit-image's ``regionprops_table``); only what they need is computed, and each
+    wrinkle's max depth, which decides whether it is one (:func:`wrinkle_properties`). ``properties``:
     attributes of :class:`WrinkleProperties` (e.g. ``"label"``, ``"max_depth_um"``);
     ``settings``: those of :class:`WrinkleSettings`."""
     unknown = [name for name in properties if name not in ("id", "label") and not hasattr(WrinkleProperties, name)]
