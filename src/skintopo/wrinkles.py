@@ -494,6 +494,12 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     height = HeightMap(z, height.spacing, height.mask)
     plateau = plateau_surface(height, settings.furrow_closing_um)
     reference = skin_level(plateau, height.spacing, around, settings.reference_cutoff_um)
+    missing = ~np.isfinite(reference)
+    if missing.any():  # no skin within the regression's reach (inside a wide wrinkled area): the nearest level carried on
+        if missing.all():
+            raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
+        _, (rows, columns) = scipy.ndimage.distance_transform_edt(missing, return_indices=True)
+        reference = reference[rows, columns]
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))

@@ -11,7 +11,7 @@ from skintopo.evaluation import match_wrinkle
 from skintopo.segmentation import segment_wrinkles
 from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
-from skintopo.wrinkles import centre_lines, measure_wrinkles, quadratic_savitzky_golay, wrinkle_frame
+from skintopo.wrinkles import centre_lines, measure_wrinkles, quadratic_savitzky_golay, wrinkle_field, wrinkle_frame
 
 TOLERANCES = {"max_depth_um": 0.05, "mean_depth_um": 0.05, "mean_width_mm": 0.10, "length_mm": 0.05, "volume_mm3": 0.10,
               "cross_section_mm2": 0.10}
@@ -328,3 +328,19 @@ def test_the_skin_level_of_a_wide_shallow_wrinkle_is_read_beyond_its_tails(depth
     print(depth_um, {k: f"{100 * v:+.2f}%" for k, v in errors[0].items()})
     assert abs(errors[0]["max_depth_um"]) < 0.01 and abs(errors[0]["mean_depth_um"]) < 0.01
     assert abs(errors[0]["mean_width_mm"]) < 0.01 and abs(errors[0]["volume_mm3"]) < 0.06
+
+
+def test_a_skin_level_is_set_even_far_inside_a_wide_wrinkled_area():
+    """Where no skin lies within the skin level's regression (the middle of a 6 mm wrinkled
+    area), the regression has no value: the level is carried on from the nearest point that
+    has one, and the wrinkle is measured instead of failing deep inside NumPy."""
+    wrinkle = Wrinkle(depth_um=100.0, width_um=600.0, length_um=4000.0, orientation_deg=0.0, shape="U")
+    surface = make_surface(SurfaceSpec(size_px=(500, 500), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
+    segmentation = segment_wrinkles(surface.height)
+    extent = np.zeros(surface.height.shape, bool)
+    extent[100:400, 100:400] = True  # 6 mm x 6 mm around the wrinkle, at 20 um pixels
+    wide = dataclasses.replace(segmentation, extent=segmentation.extent | extent)
+    field = wrinkle_field(surface.height, wide)
+    assert np.isfinite(field.reference).all()
+    measured = match_wrinkle(measure_wrinkles(surface.height, wide), surface.wrinkle_labels == 1)
+    assert measured.max_depth_um == pytest.approx(geometric_measures(wrinkle)["max_depth_um"], rel=0.05)
