@@ -10,9 +10,9 @@ exact geometry. In short:
   a level line segment, :func:`~skintopo.filters.line_segment_closing`) with a
   ``furrow_closing_um`` (0.2 mm) segment at 0, 45, 90 and 135 degrees, and that plateau
   surface is carried under the wrinkles by the ISO 16610-61 Gaussian regression filter
-  (``reference_cutoff_um``, 2.5 mm) over the skin outside them: outside their extents and
-  at least one half-depth width from their half-depth regions (:func:`wrinkle_reach`, where a
-  Gaussian profile's tail is down to 0.2% of its depth), widened by ``margin_um``.
+  (``reference_cutoff_um``, 2.5 mm) over the skin outside them (widened by ``margin_um``).
+  Where no skin lies within the regression's reach, the level of the nearest point that has
+  one is carried on.
   The least-squares quadratic form of that skin is removed first (the regression passes
   planes but lifts a curved forehead's level by sigma^2 / (2 R)). No smoothing filter
   touches the wrinkle: ``short_cutoff_um`` (an S-filter of the height) is 0 by default,
@@ -75,7 +75,6 @@ PROFILE_SMOOTHING_UM = 250.0  # the floor depth is averaged over this to find th
 # width): a microrelief furrow running on from a wrinkle's end is deep on its own line but not
 # a quarter of the wrinkle's width beside it (shallow wrinkles read 5-30% too long)
 ENDS_ACROSS_FRACTION = 0.25
-WRINKLE_REACH_WIDTHS = 1.0  # the skin level is read this many half-depth widths or more from a wrinkle (wrinkle_reach)
 
 
 @dataclass(frozen=True, eq=False)
@@ -476,12 +475,7 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     if segmentation.labels.shape != height.shape:
         raise ValueError(f"segmentation shape {segmentation.labels.shape} differs from the height map {height.shape}")
     extent = np.asarray(segmentation.extent, bool)
-    # The skin level is set from skin beyond every wrinkle's tails, which its extent (the
-    # segmentation's basins) does not always reach; where that leaves too little skin, from the
-    # skin outside the extents alone.
-    around = skin_around(height.mask, extent | wrinkle_reach(segmentation.labels, height.spacing), height.spacing, settings.margin_um)
-    if around is None:
-        around = skin_around(height.mask, extent, height.spacing, settings.margin_um)
+    around = skin_around(height.mask, extent, height.spacing, settings.margin_um)
     if around is None:
         raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
     # The least-squares quadratic form of the skin around the wrinkles is removed first: the
@@ -504,29 +498,6 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
     return WrinkleField(height, z, plateau, reference, around, segmentation.labels, extent, label(extent), settings)
-
-
-def wrinkle_reach(labels, spacing, widths=WRINKLE_REACH_WIDTHS):
-    """The points within ``widths`` x its half-depth width of each wrinkle's half-depth region
-    (``labels``), the width being the region's area over its skeleton's length.
-
-    A wrinkle's relief reaches beyond its half-depth region: a V or U profile ends half a
-    half-depth width h beyond it, a Gaussian one falls to 1% of its depth 0.79 h beyond it and
-    to 0.2% at h. Skin closer than that lowers the skin level the depth is read from; the
-    segmentation's basins stop short of it on wide shallow wrinkles (bench_wrinkles: Gaussian
-    wrinkles 0.9-1.2 mm wide read 2-4% too shallow and their volume 6-13% too small on smooth
-    skin, twice that with microrelief).
-    """
-    labels = np.asarray(labels)
-    if not labels.any():
-        return np.zeros(labels.shape, bool)
-    index = np.arange(1, labels.max() + 1)
-    dy, dx = spacing
-    area = scipy.ndimage.sum_labels(np.ones(labels.shape), labels, index) * dy * dx
-    line = scipy.ndimage.sum_labels(skeletonize(labels > 0), labels, index) * min(dy, dx)
-    width = np.concatenate([[0.0], area / np.maximum(line, min(dy, dx))])
-    distance, (rows, columns) = scipy.ndimage.distance_transform_edt(labels == 0, sampling=(dy, dx), return_indices=True)
-    return distance <= widths * width[labels[rows, columns]]
 
 
 @dataclass(frozen=True)

@@ -69,9 +69,7 @@ def test_a_furrow_running_on_from_an_end_does_not_lengthen_the_wrinkle(shape, de
     its end to 1 mm past it is deeper than half the wrinkle on the centre line: read on the
     centre line alone the ends moved out along it (+11 to +36% in length, mean depth -2 to
     -9%). The ends are found where the depth a quarter of the half-depth width beside the line
-    is also gone: length within 1% of the geometry, mean depth within 1.5% (within 1% until the
-    skin level was read beyond the wrinkles' tails, ``wrinkles.wrinkle_reach``, which moved the
-    40 um cases' mean depth by -0.5%)."""
+    is also gone: length and mean depth within 1% of the geometry."""
     wrinkle = Wrinkle(depth_um=depth_um, width_um=600.0, length_um=4000.0, shape=shape)
     surface = make_surface(SurfaceSpec(size_px=(320, 320), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
     height = surface.height
@@ -83,7 +81,7 @@ def test_a_furrow_running_on_from_an_end_does_not_lengthen_the_wrinkle(shape, de
     measured = match_wrinkle(measure_wrinkles(furrowed, segment_wrinkles(furrowed)), surface.wrinkle_labels == 1)
     truth = geometric_measures(wrinkle)
     assert measured.length_mm == pytest.approx(truth["length_mm"], rel=0.01)
-    assert measured.mean_depth_um == pytest.approx(truth["mean_depth_um"], rel=0.015)
+    assert measured.mean_depth_um == pytest.approx(truth["mean_depth_um"], rel=0.01)
 
 
 @pytest.mark.slow
@@ -314,20 +312,6 @@ def test_a_valley_shallower_than_the_minimum_depth_is_not_a_wrinkle():
     from skintopo.segmentation import segmentation_from_labels
 
     assert len(measure_wrinkles(surface.height, segmentation_from_labels(segmentation.labels, surface.height.spacing)).wrinkles) == 1
-
-
-@pytest.mark.parametrize("depth_um", [35.0, 50.0])
-def test_the_skin_level_of_a_wide_shallow_wrinkle_is_read_beyond_its_tails(depth_um):
-    """A Gaussian wrinkle 1.1 mm wide reaches far beyond the segmentation's basin: with the skin
-    level read there, it read 3.4% too shallow and its volume 10.6% too small (35 um deep). The
-    level is now read one half-depth width or more from the half-depth region
-    (``wrinkles.wrinkle_reach``): depth within 1%; the volume is still 3.5-4.5% small."""
-    wrinkle = Wrinkle(depth_um=depth_um, width_um=1100.0, length_um=4000.0, orientation_deg=10.0, shape="G", centre_um=(0.0, -1200.0))
-    surface = make_surface(SurfaceSpec(size_px=(384, 384), wrinkles=(wrinkle,), microrelief=False, form_radius_mm=None), seed=0)
-    _, errors = relative_errors(surface)
-    print(depth_um, {k: f"{100 * v:+.2f}%" for k, v in errors[0].items()})
-    assert abs(errors[0]["max_depth_um"]) < 0.01 and abs(errors[0]["mean_depth_um"]) < 0.01
-    assert abs(errors[0]["mean_width_mm"]) < 0.01 and abs(errors[0]["volume_mm3"]) < 0.06
 
 
 def test_a_skin_level_is_set_even_far_inside_a_wide_wrinkled_area():
