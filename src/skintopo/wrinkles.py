@@ -64,6 +64,7 @@ from skimage.morphology import skeletonize
 from skintopo.defaults import DEFAULT_ALONG_CLOSING_UM, DEFAULT_DEPTH_SHORT_CUTOFF_UM, DEFAULT_DEPTH_WINDOW_UM, DEFAULT_FURROW_CLOSING_UM
 from skintopo.errors import SkinTopoError
 from skintopo.filters import areal_gaussian_filter, line_segment_closing_extremes, polynomial_form
+from skintopo.height import fill_from_nearest
 from skintopo.heightmap import HeightMap
 from skintopo.segmentation import REFERENCE_CUTOFF_UM, REFERENCE_MARGIN_UM, WrinkleSegmentation, margin_pixels, skin_around, skin_level
 
@@ -488,12 +489,10 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     height = HeightMap(z, height.spacing, height.mask)
     plateau = plateau_surface(height, settings.furrow_closing_um)
     reference = skin_level(plateau, height.spacing, around, settings.reference_cutoff_um)
-    missing = ~np.isfinite(reference)
-    if missing.any():  # no skin within the regression's reach (inside a wide wrinkled area): the nearest level carried on
-        if missing.all():
-            raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
-        _, (rows, columns) = scipy.ndimage.distance_transform_edt(missing, return_indices=True)
-        reference = reference[rows, columns]
+    known = np.isfinite(reference)
+    if not known.any():
+        raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
+    reference, = fill_from_nearest(known, reference)  # no skin within the regression's reach (inside a wide wrinkled area)
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))
