@@ -489,10 +489,8 @@ def wrinkle_field(height: HeightMap, segmentation: WrinkleSegmentation, settings
     height = HeightMap(z, height.spacing, height.mask)
     plateau = plateau_surface(height, settings.furrow_closing_um)
     reference = skin_level(plateau, height.spacing, around, settings.reference_cutoff_um)
-    known = np.isfinite(reference)
-    if not known.any():
-        raise SkinTopoError("too little skin around the wrinkles to set the local reference level")
-    reference, = fill_from_nearest(known, reference)  # no skin within the regression's reach (inside a wide wrinkled area)
+    # no skin within the regression's reach (inside a wide wrinkled area); ``around`` holds some, so some point has a level
+    reference, = fill_from_nearest(np.isfinite(reference), reference)
     # Outside the mask (no data) the skin is taken at its reference level, so that the frame's
     # interpolation never reads a missing value; those samples are not part of any wrinkle.
     z, plateau = (np.where(height.mask, image, reference) for image in (height.z, plateau))

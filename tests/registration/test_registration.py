@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.ndimage
 
 from skintopo.evaluation import evaluate_height
 from skintopo.heightmap import HeightMap
@@ -41,8 +42,6 @@ def test_the_registered_map_keeps_a_wrinkle_floor_and_its_missing_data():
     former one) averages two samples at a half-pixel shift and loses 0.55 um of the floor; the
     cubic spline is within 0.05 um (0.017 measured). A hole in the moving map stays missing
     where its nearest samples are (as with bilinear resampling)."""
-    import scipy.ndimage
-
     waves = np.random.default_rng(2).uniform([0.004, 0.0, 0.0], [0.02, np.pi, 2 * np.pi], (8, 3))  # per um, direction, phase
 
     def surface(rows, columns):  # um: a groove along the rows on a relief of 8 plane waves

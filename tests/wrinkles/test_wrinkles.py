@@ -8,7 +8,7 @@ import pytest
 from skintopo.errors import SkinTopoError
 from skintopo.heightmap import HeightMap
 from skintopo.evaluation import match_wrinkle
-from skintopo.segmentation import segment_wrinkles
+from skintopo.segmentation import segment_wrinkles, segmentation_from_labels
 from skintopo.synth import make_surface, preset_spec
 from skintopo.synth.surfaces import SurfaceSpec, Wrinkle, geometric_measures, random_wrinkle_spec
 from skintopo.wrinkles import centre_lines, measure_wrinkles, quadratic_savitzky_golay, wrinkle_field, wrinkle_frame
@@ -266,8 +266,6 @@ def test_depth_s_filter_option_and_settings_errors():
 def test_no_wrinkles_and_a_segmentation_of_another_map():
     """A field without wrinkles has no measures and zero totals; a segmentation made on a map of
     another size is refused, also when it found nothing."""
-    from skintopo.segmentation import segmentation_from_labels
-
     flat = HeightMap(np.zeros((60, 80)), 20.0)
     measures = measure_wrinkles(flat, segmentation_from_labels(np.zeros((60, 80), np.int32), 20.0))
     assert measures.wrinkles == [] and measures.totals["count"] == 0 and measures.totals["total_length_mm"] == 0
@@ -281,7 +279,6 @@ def test_any_labelled_region_is_measured_or_left_out_never_an_error():
     and left out otherwise; never an IndexError from an empty floor profile (the former code
     raised on 265 of 576 such boxes: the profile's NaN made its maximum NaN, and a floor above
     the surrounding skin had no sample at half depth)."""
-    from skintopo.segmentation import segmentation_from_labels
 
     spec = SurfaceSpec(size_px=(128, 128), pixel_um=20.0, microrelief=False,
                        wrinkles=(Wrinkle(depth_um=80.0, width_um=400.0, length_um=1500.0, shape="V"),))
@@ -309,8 +306,6 @@ def test_a_valley_shallower_than_the_minimum_depth_is_not_a_wrinkle():
         measures = measure_wrinkles(surface.height, stricter)
         assert len(measures.wrinkles) == count and measures.totals["count"] == count
         assert (measures.labels > 0).any() == bool(count)
-    from skintopo.segmentation import segmentation_from_labels
-
     assert len(measure_wrinkles(surface.height, segmentation_from_labels(segmentation.labels, surface.height.spacing)).wrinkles) == 1
 
 
