@@ -417,7 +417,11 @@ def skin_level(surface, spacing, skin, cutoff_um=REFERENCE_CUTOFF_UM):
 
 
 CROSSING_MAX_BEND_DEG = 40.0  # arms this close to straight continue one wrinkle
-CROSSING_MAX_GAP_UM = 2500.0  # pieces of one wrinkle may be this far apart (its half-depth region cut by a deeper one)
+# Pieces of one wrinkle may be this far apart: a deeper wrinkle cuts a shallower one's half-depth
+# region over its own width (up to about 1.2 mm) and the reach of the half-depth window on either
+# side (DEFAULT_WIDTH_WINDOW_UM, 1.5 mm). 2.5 mm left bench_wrinkles' field 324 in one label (a
+# gap of 2.59 mm); 3 and 3.5 mm gave the same results there.
+CROSSING_MAX_GAP_UM = 3000.0
 # A label is split when its longest chain spans the minimum length and another at least this
 # fraction of it: a wrinkle that crosses a deeper one near its own end keeps on one side only
 # the part its half-depth region reaches past the crossing. Such a shorter chain must also
@@ -432,7 +436,8 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
     """Wrinkles that cross share one label (one basin group); give each its own.
 
     The skeleton of the label's half-depth region (its pieces too) is cut at its junctions
-    into arms; arms shorter than the region's mean width are spurs and dropped. Arms continue
+    into arms; arms shorter than the region's mean width are spurs and dropped (a piece of
+    skeleton made of spurs alone keeps its longest arm). Arms continue
     one wrinkle where they run on nearly straight (within ``CROSSING_MAX_BEND_DEG``): at a
     junction, the most nearly opposite arms are joined; across a gap (a shallow wrinkle's
     region is cut where a deeper one crosses it, up to ``CROSSING_MAX_GAP_UM``), two free ends
@@ -520,6 +525,16 @@ def _chained_arms(arms, hubs, pixel, width):
                    for end in ends[:2]]
     at_hubs = {a: {hub for _, hub in ends if hub} for a, ends in tips.items()}
     spurs = {a for a in tips if len(at_hubs[a]) == 1 and len(points[a]) * pixel < width}  # a 1-pixel arm too
+    # A piece of skeleton made of spurs alone (a wrinkle's stub beyond a deeper one that cuts
+    # it, its end forked) keeps its longest arm: it is a piece of a wrinkle, not a side branch,
+    # and may continue across the gap (bench_wrinkles' field 309).
+    pieces = label((arms > 0) | (hubs > 0), connectivity=2)
+    arms_of_piece = {}
+    for a in tips:
+        arms_of_piece.setdefault(int(pieces[tuple(points[a][0].astype(int))]), []).append(a)
+    for members in arms_of_piece.values():
+        if spurs.issuperset(members):
+            spurs.discard(max(members, key=lambda a: len(points[a])))
     # arms shorter than a width, in the tangle of a crossing's skeleton, are bridges between
     # any two hubs (counting only the junctions of three arms lost crossings on held-out fields)
     arms_at = {}

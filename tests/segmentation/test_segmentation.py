@@ -137,6 +137,29 @@ def test_a_narrow_shallow_wrinkle_crossing_a_deeper_one_is_found_whole():
         assert found.length_mm == pytest.approx(geometric_measures(wrinkle)["length_mm"], rel=0.05)
 
 
+@pytest.mark.parametrize("seed", [309, 324])
+def test_a_wrinkle_cut_in_two_by_a_deeper_one_is_found_whole(seed):
+    """bench_wrinkles' fields 309 and 324 (simulated crossing pairs): a shallower wrinkle cut in
+    two by a deeper one it crosses was left inside the deeper one's label. In field 309 (81 um
+    deep G crossing a 109 um V at 74 degrees) the skeleton of one piece was all spurs (a short
+    arm ending in a fork), so the piece had no arm to continue across the gap; in field 324
+    (92 um V crossing a 193 um G at 49 degrees) the pieces' ends were 2.59 mm apart, beyond
+    the former 2.5 mm gap. Each wrinkle is now its own: length and max depth within 5% of the
+    geometry's."""
+    from skintopo.evaluation import match_wrinkle
+    from skintopo.synth.surfaces import geometric_measures, random_wrinkle_spec
+    from skintopo.wrinkles import measure_wrinkles
+
+    surface = make_surface(random_wrinkle_spec(np.random.default_rng(seed), microrelief=seed % 2 == 0, crossing=True), seed=seed)
+    measures = measure_wrinkles(surface.height, segment_wrinkles(surface.height))
+    matched = [match_wrinkle(measures, surface.wrinkle_labels == index + 1) for index in range(2)]
+    assert matched[0] is not None and matched[1] is not None and matched[0].id != matched[1].id
+    for wrinkle, found in zip(surface.spec.wrinkles, matched):
+        truth = geometric_measures(wrinkle)
+        assert found.length_mm == pytest.approx(truth["length_mm"], rel=0.05)
+        assert found.max_depth_um == pytest.approx(truth["max_depth_um"], rel=0.05)
+
+
 def test_short_spurs_and_a_single_wrinkle_are_left_alone():
     """A 3 mm band with a 0.12 mm stub (shorter than its width) and a T whose stem is shorter
     than the minimum length: one label each, unchanged."""
