@@ -461,7 +461,14 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
         width = region.area * pixel / max(region.axis_major_length, 1.0)
         points = [np.argwhere(np.isin(arms, chain)) for chain in _chained_arms(arms, hubs, pixel, width)]
         along = [_along_axis(p) for p in points]  # the position of each chain's points along it
-        spans = [float(np.ptp(a)) * pixel for a in along]  # its length, gaps included
+        # A chain's length, gaps included: the extent along its axis of the region's points
+        # nearest to it. Its skeleton stops about half a width short of each free end (the
+        # segmentation's own length test is on the region); on the skeleton alone a wrinkle's
+        # piece beyond a deeper one it crosses fell short (bench_wrinkles' field 319: skeleton
+        # 0.97 mm, region 1.24 mm). At a junction the region's points belong to the other chain.
+        nearest = _nearest_chain(core, points)
+        spans = [float(np.ptp(np.argwhere(core & (nearest == number)) @ _principal_axis(chain))) * pixel if len(chain) > 1 else 0.0
+                 for number, chain in enumerate(points, start=1)]
         full = [index for index, span in enumerate(spans) if span >= min_length_um]
         if not full:
             continue
@@ -469,11 +476,7 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
                               and _crosses(points[index], [(points[f], along[f]) for f in full], width / pixel)]
         if len(long_chains) < 2:
             continue
-        owner = np.zeros(core.shape, np.int32)
-        for number, index in enumerate(long_chains, start=1):
-            owner[tuple(points[index].T)] = number
-        _, (rows, columns) = scipy.ndimage.distance_transform_edt(owner == 0, return_indices=True)
-        nearest = owner[rows, columns]
+        nearest = _nearest_chain(core, [points[index] for index in long_chains])
         box = out[region.slice]
         box[core] = np.where(nearest[core] == 1, region.label, next_label + nearest[core] - 2)
         next_label += len(long_chains) - 1
@@ -493,11 +496,25 @@ def _crosses(mine, full, width_px):
     return False
 
 
+def _principal_axis(points):
+    """The unit direction of the principal axis of ``points`` (n >= 2, 2)."""
+    return np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2][0]
+
+
 def _along_axis(points):
     """The positions (pixels) of ``points`` (n, 2) along their principal axis (zeros for a
     single point)."""
-    centred = points - points.mean(axis=0)
-    return centred @ np.linalg.svd(centred, full_matrices=False)[2][0] if len(points) > 1 else np.zeros(1)
+    return (points - points.mean(axis=0)) @ _principal_axis(points) if len(points) > 1 else np.zeros(1)
+
+
+def _nearest_chain(like, chains):
+    """The number (1, 2, ...) of the nearest of ``chains`` (point arrays) at every pixel of an
+    image shaped as ``like``."""
+    owner = np.zeros(like.shape, np.int32)
+    for number, chain in enumerate(chains, start=1):
+        owner[tuple(chain.T)] = number
+    _, (rows, columns) = scipy.ndimage.distance_transform_edt(owner == 0, return_indices=True)
+    return owner[rows, columns]
 
 
 def _chained_arms(arms, hubs, pixel, width):
