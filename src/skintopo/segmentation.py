@@ -526,7 +526,10 @@ def _chained_arms(arms, hubs, pixel, width):
     junctions joined by an arm shorter than 2 widths are one crossing (wrinkles crossing at a
     shallow angle share a stretch of skeleton), and that arm belongs to neither; an arm longer
     than a width counts as such a bridge only when both its junctions join at least three arms
-    that are not spurs (a wide wrinkle's rounded end forks into spurs)."""
+    that are not spurs (a wide wrinkle's rounded end forks into spurs). A piece of skeleton too
+    short to have a direction at its ends (a wrinkle's stub beyond one that cuts it, a few
+    pixels) may end a chain across a gap when the other end points at it and another arm lies
+    between them (the wrinkle that cut it); it continues one chain at most."""
     straight = np.cos(np.radians(CROSSING_MAX_BEND_DEG))
     reach = max(3.0, 2 * width / pixel)  # pixels over which an arm's direction at an end is taken
     neighbours = scipy.ndimage.convolve((arms > 0).astype(int), np.ones((3, 3), int), mode="constant") - 1
@@ -546,9 +549,10 @@ def _chained_arms(arms, hubs, pixel, width):
     # it, its end forked) keeps its longest arm: it is a piece of a wrinkle, not a side branch,
     # and may continue across the gap (bench_wrinkles' field 309).
     pieces = label((arms > 0) | (hubs > 0), connectivity=2)
+    piece_of = {a: int(pieces[tuple(points[a][0].astype(int))]) for a in tips}
     arms_of_piece = {}
     for a in tips:
-        arms_of_piece.setdefault(int(pieces[tuple(points[a][0].astype(int))]), []).append(a)
+        arms_of_piece.setdefault(piece_of[a], []).append(a)
     for members in arms_of_piece.values():
         if spurs.issuperset(members):
             spurs.discard(max(members, key=lambda a: len(points[a])))
@@ -566,27 +570,48 @@ def _chained_arms(arms, hubs, pixel, width):
             crossings.merge(*junctions)
         else:
             ids.append(a)
+    kept_in_piece = {}
+    for a in ids:
+        kept_in_piece[piece_of[a]] = kept_in_piece.get(piece_of[a], 0) + 1
+
     def outward(a, end):
         """Unit direction of arm ``a`` at its point ``end``, pointing out of the arm: from the
-        arm's points half a width to three widths away (a skeleton's last pixels hook)."""
+        arm's points half a width to three widths away (a skeleton's last pixels hook); and
+        whether that direction is sure. An arm with no point that far, alone in its piece of
+        skeleton, is a stub: its direction is not sure (zero when it is a single pixel)."""
         distance = np.hypot(*(points[a] - end).T)
         close = points[a][(distance >= 0.25 * reach) & (distance <= 1.5 * reach)]
         vector = end - (close if len(close) else points[a]).mean(axis=0)
         norm = np.hypot(*vector)
-        return vector / norm if norm > 0 else None
+        if not len(close) and kept_in_piece[piece_of[a]] == 1:
+            return (vector / norm if norm > 0 else np.zeros(2)), False
+        return (vector / norm, True) if norm > 0 else None
 
     degree = {}  # kept arms at each crossing: one alone is a free end (its other arms were spurs)
     for a in ids:
         for _, hub in tips[a]:
             if hub:
                 degree[crossings[hub]] = degree.get(crossings[hub], 0) + 1
-    ends = [(a, end, direction, crossings[hub] if hub and degree[crossings[hub]] > 1 else 0) for a in ids for end, hub in tips[a]
-            if (direction := outward(a, end)) is not None]
+    ends = []  # (arm, tip, outward direction, its crossing or 0, whether the direction is sure)
+    for a in ids:
+        for end, hub in tips[a]:
+            if (found := outward(a, end)) is not None:
+                ends.append((a, end, found[0], crossings[hub] if hub and degree[crossings[hub]] > 1 else 0, found[1]))
+    arms_near = scipy.ndimage.grey_dilation(arms, size=(3, 3))
     candidates = []
-    for i, (a, tip_a, dir_a, hub_a) in enumerate(ends):
+    for i, (a, tip_a, dir_a, hub_a, sure_a) in enumerate(ends):
         for j in range(i + 1, len(ends)):
-            b, tip_b, dir_b, hub_b = ends[j]
+            b, tip_b, dir_b, hub_b, sure_b = ends[j]
             if a == b:
+                continue
+            if not (sure_a and sure_b):  # a stub: across a gap, the other end pointing at it over another arm
+                gap = tip_b - tip_a
+                distance = np.hypot(*gap)
+                if (sure_a or sure_b) and not hub_a and not hub_b and 0 < distance * pixel <= CROSSING_MAX_GAP_UM:
+                    pointing = float(dir_a @ gap if sure_a else -(dir_b @ gap)) / distance
+                    between = arms_near[tuple(np.rint(tip_a + np.linspace(0.15, 0.85, 50)[:, None] * gap).astype(int).T)]
+                    if pointing >= straight and np.any((between > 0) & (between != a) & (between != b)):
+                        candidates.append((-pointing - 1.0 + distance * pixel / CROSSING_MAX_GAP_UM, i, j))
                 continue
             if hub_a and hub_a == hub_b:  # through a crossing: the most nearly opposite arms
                 cosine = float(dir_a @ dir_b)
@@ -605,6 +630,8 @@ def _chained_arms(arms, hubs, pixel, width):
         if i not in continued and j not in continued:
             wrinkles.merge(ends[i][0], ends[j][0])
             continued |= {i, j}
+            for stub in (ends[k][0] for k in (i, j) if not ends[k][4]):  # a stub continues one chain at most
+                continued |= {k for k, end in enumerate(ends) if end[0] == stub}
     return [sorted(chain) for chain in wrinkles.subsets()]
 
 
