@@ -466,7 +466,7 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
         # segmentation's own length test is on the region); on the skeleton alone a wrinkle's
         # piece beyond a deeper one it crosses fell short (bench_wrinkles' field 319: skeleton
         # 0.97 mm, region 1.24 mm). At a junction the region's points belong to the other chain.
-        nearest = _nearest_chain(core, points)
+        nearest = _nearest_chain(core.shape, points)
         spans = [float(np.ptp(np.argwhere(core & (nearest == number)) @ _principal_axis(chain))) * pixel if len(chain) > 1 else 0.0
                  for number, chain in enumerate(points, start=1)]
         full = [index for index, span in enumerate(spans) if span >= min_length_um]
@@ -476,7 +476,7 @@ def split_crossing_wrinkles(labels, spacing, min_length_um):
                               and _crosses(points[index], [(points[f], along[f]) for f in full], width / pixel)]
         if len(long_chains) < 2:
             continue
-        nearest = _nearest_chain(core, [points[index] for index in long_chains])
+        nearest = _nearest_chain(core.shape, [points[index] for index in long_chains])
         box = out[region.slice]
         box[core] = np.where(nearest[core] == 1, region.label, next_label + nearest[core] - 2)
         next_label += len(long_chains) - 1
@@ -507,10 +507,10 @@ def _along_axis(points):
     return (points - points.mean(axis=0)) @ _principal_axis(points) if len(points) > 1 else np.zeros(1)
 
 
-def _nearest_chain(like, chains):
+def _nearest_chain(shape, chains):
     """The number (1, 2, ...) of the nearest of ``chains`` (point arrays) at every pixel of an
-    image shaped as ``like``."""
-    owner = np.zeros(like.shape, np.int32)
+    image of ``shape``."""
+    owner = np.zeros(shape, np.int32)
     for number, chain in enumerate(chains, start=1):
         owner[tuple(chain.T)] = number
     _, (rows, columns) = scipy.ndimage.distance_transform_edt(owner == 0, return_indices=True)
@@ -604,26 +604,25 @@ def _chained_arms(arms, hubs, pixel, width):
             b, tip_b, dir_b, hub_b, sure_b = ends[j]
             if a == b:
                 continue
-            if not (sure_a and sure_b):  # a stub: across a gap, the other end pointing at it over another arm
-                gap = tip_b - tip_a
-                distance = np.hypot(*gap)
-                if (sure_a or sure_b) and not hub_a and not hub_b and 0 < distance * pixel <= CROSSING_MAX_GAP_UM:
-                    pointing = float(dir_a @ gap if sure_a else -(dir_b @ gap)) / distance
-                    between = arms_near[tuple(np.rint(tip_a + np.linspace(0.15, 0.85, 50)[:, None] * gap).astype(int).T)]
-                    if pointing >= straight and np.any((between > 0) & (between != a) & (between != b)):
-                        candidates.append((-pointing - 1.0 + distance * pixel / CROSSING_MAX_GAP_UM, i, j))
-                continue
             if hub_a and hub_a == hub_b:  # through a crossing: the most nearly opposite arms
                 cosine = float(dir_a @ dir_b)
                 if cosine <= -straight:
                     candidates.append((cosine, i, j))
-            elif not hub_a and not hub_b:  # across a gap: two free ends that point at each other
+            elif not hub_a and not hub_b and (sure_a or sure_b):  # across a gap (a stub has no hub)
                 gap = tip_b - tip_a
                 distance = np.hypot(*gap)
-                if 0 < distance * pixel <= CROSSING_MAX_GAP_UM:
-                    gap = gap / distance
-                    if dir_a @ gap >= straight and -(dir_b @ gap) >= straight and float(dir_a @ dir_b) <= -straight:
-                        candidates.append((float(dir_a @ dir_b) - 1.0 + distance * pixel / CROSSING_MAX_GAP_UM, i, j))
+                if not 0 < distance * pixel <= CROSSING_MAX_GAP_UM:
+                    continue
+                farther = distance * pixel / CROSSING_MAX_GAP_UM
+                if sure_a and sure_b:  # two free ends that point at each other
+                    unit = gap / distance
+                    if dir_a @ unit >= straight and -(dir_b @ unit) >= straight and float(dir_a @ dir_b) <= -straight:
+                        candidates.append((float(dir_a @ dir_b) - 1.0 + farther, i, j))
+                else:  # a stub: the other end points at it, over another arm (the wrinkle that cut it)
+                    pointing = float(dir_a @ gap if sure_a else -(dir_b @ gap)) / distance
+                    between = arms_near[tuple(np.rint(tip_a + np.linspace(0.15, 0.85, 50)[:, None] * gap).astype(int).T)]
+                    if pointing >= straight and np.any((between > 0) & (between != a) & (between != b)):
+                        candidates.append((-pointing - 1.0 + farther, i, j))
     wrinkles = DisjointSet(ids)
     continued = set()  # ends already joined
     for _, i, j in sorted(candidates):
