@@ -33,6 +33,7 @@ from skimage.transform import warp_polar
 
 from skintopo.errors import SkinTopoError
 from skintopo.filters import level
+from skintopo.height import fill_from_nearest
 from skintopo.heightmap import HeightMap
 
 CAUCHY_FACTOR = 2.385
@@ -173,9 +174,7 @@ def _warp_height(moving: HeightMap, shift, angle_deg, scale, spacing):
     valid instead widened every hole of a reconstruction (scattered invalid pixels in shadowed
     wrinkle floors) and moved its wrinkles' max depth by up to 1 um.
     """
-    filled = moving.z
-    if not moving.mask.all():
-        filled = filled[tuple(scipy.ndimage.distance_transform_edt(~moving.mask, return_distances=False, return_indices=True))]
+    filled, = fill_from_nearest(moving.mask, moving.z)
     valid = _warp(moving.mask.astype(float), shift, angle_deg, scale, order=1, cval=0.0) > 1 - 1e-6
     return HeightMap(_warp(filled, shift, angle_deg, scale, order=3, cval=0.0), spacing, valid)
 
