@@ -54,6 +54,7 @@ full extent of the kept wrinkles (their watershed basins, walls included).
 
 from __future__ import annotations
 
+from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -570,9 +571,7 @@ def _chained_arms(arms, hubs, pixel, width):
             crossings.merge(*junctions)
         else:
             ids.append(a)
-    kept_in_piece = {}
-    for a in ids:
-        kept_in_piece[piece_of[a]] = kept_in_piece.get(piece_of[a], 0) + 1
+    kept_in_piece = Counter(piece_of[a] for a in ids)
 
     def outward(a, end):
         """Unit direction of arm ``a`` at its point ``end``, pointing out of the arm: from the
