@@ -28,7 +28,13 @@ Estimation, alternating until the height stops changing (``tolerance``):
    T_red / T_blue and T_green / T_blue; the three kernels (w, l per band, a shared) are the
    least-squares fit of these two ratio curves (each band's g normalised by its median
    albedo, so the ratios tend to 1 at zero frequency). The ratio of two members of the
-   family is not itself a member, which is what makes the absolute kernels identifiable.
+   family is not itself a member, which is what makes the absolute kernels identifiable,
+   weakly: a blur shared by all bands barely changes the ratios. When the fit puts a band's
+   spread weight at its bound, the ratios have not fixed that shared blur, and the fit is
+   redone with a least-blur prior on blue's weight (the least blur the ratios allow; see
+   :func:`estimate_scattering_kernels`). Where every band does spread (the ``literature``
+   profile), an unblurred blue is wrong, yet a smaller error than the bound's blur, which the
+   deconvolution amplified (bench_physics, docs/method.md).
 2. Direct images: J_ci = I_ci - s_i - T_c[rho_c K (I_ci - s_i)], which is T_c[rho_c E_i].
 3. Fusion and deconvolution in one step: per spatial frequency f the bands give
    J_ci(f) = rho_c T_c(f) S_i(f), and the least-squares S_i(f) = sum_c a_c J_ci / sum_c a_c^2,
@@ -121,6 +127,8 @@ ROUGHNESS_GRID = np.linspace(0.15, 0.5, 15)  # Beckmann m searched: skin 0.3-0.4
 # broader lobe is not skin's and took up what the model missed (Mitsuba diffuse renders: m 0.55-0.7). Steps of 0.025:
 # with steps of 0.05 the height moved by 0.3-3 um between neighbouring m (simulator default-v1: mean 3.45 -> 2.48 um)
 SHAPE_BOUNDS = (0.6, 50.0)  # Matern shape a: 3/2 = exponential profile, 50 ~ Gaussian
+MAX_SPREAD_WEIGHT = 0.95  # the kernel fit's bound on each band's spread weight w
+LEAST_BLUR_PRIOR = 2.0  # the prior's strength when a fitted weight sits at that bound (estimate_scattering_kernels)
 
 
 @dataclass(frozen=True)
@@ -263,7 +271,24 @@ def estimate_scattering_kernels(scaled_normals, spacing):
     """Fit red, green and blue :class:`ScatteringKernel` to the measured band ratios.
 
     Uses the rings from 3 frequency steps up (lower rings are dominated by the window and the
-    form) whose power is above 1e-3 of the strongest. Returns (kernels, RMS misfit).
+    form) whose power is above 1e-3 of the strongest; least squares of the two ratio curves
+    (weights sqrt(log(1 + P / P_min)), P blue's ring power) from six starts.
+
+    A blur shared by all bands is invisible to the ratios. When the best fit puts a band's
+    spread weight at its bound (``MAX_SPREAD_WEIGHT``), the ratios have pushed that common blur
+    as far as the family allows and did not fix its level; then every start and that optimum
+    are refitted with one more residual, c w_blue (the least-blur prior), where
+    c = ``LEAST_BLUR_PRIOR`` x r x sqrt(sum of the squared ring weights of both curves), r the first
+    fit's RMS misfit: taking blue's weight from 0.5 to 0 is worth a misfit of r at every ring
+    (numbers in docs/method.md).
+
+    Returns
+    -------
+    kernels : dict band -> ScatteringKernel
+    misfit : float
+        RMS misfit of the ratios (without the prior's residual).
+    least_blur : bool
+        Whether the least-blur prior was applied.
     """
     import scipy.optimize  # here, not at the top: it takes 0.1 s to import and measure rarely needs it
 
@@ -284,12 +309,23 @@ def estimate_scattering_kernels(scaled_normals, spacing):
         blue = kernels["blue"].transfer(f)
         return np.concatenate([(kernels[band].transfer(f) / blue - ratios[band][use]) * weight for band in ("red", "green")])
 
+    def rms(fit):
+        return float(np.sqrt(np.mean((fit.fun[: 2 * f.size] / np.repeat(weight, 2)) ** 2)))
+
     lower = [0, 0, 0, 5, 5, 5, np.log(SHAPE_BOUNDS[0])]
-    upper = [0.95, 0.95, 0.95, 2000, 2000, 2000, np.log(SHAPE_BOUNDS[1])]
-    fits = [scipy.optimize.least_squares(misfit, [0.3, 0.3, 0.1, 200, 120, blue_length, np.log(shape)], bounds=(lower, upper))
-            for shape in (1.0, 2.0, 6.0) for blue_length in (20.0, 60.0)]
-    best = min(fits, key=lambda fit: fit.cost)
-    return kernels_of(best.x), float(np.sqrt(np.mean((best.fun / np.repeat(weight, 2)) ** 2)))
+    upper = [MAX_SPREAD_WEIGHT] * 3 + [2000, 2000, 2000, np.log(SHAPE_BOUNDS[1])]
+    starts = [[0.3, 0.3, 0.1, 200, 120, blue_length, np.log(shape)] for shape in (1.0, 2.0, 6.0) for blue_length in (20.0, 60.0)]
+    best = min((scipy.optimize.least_squares(misfit, start, bounds=(lower, upper)) for start in starts), key=lambda fit: fit.cost)
+    least_blur = bool(np.any(best.x[:3] >= MAX_SPREAD_WEIGHT - 1e-3))
+    if least_blur:
+        strength = LEAST_BLUR_PRIOR * rms(best) * np.sqrt(2 * np.sum(weight**2))
+
+        def with_prior(x):
+            return np.append(misfit(x), strength * x[2])
+
+        best = min((scipy.optimize.least_squares(with_prior, start, bounds=(lower, upper)) for start in [*starts, best.x]),
+                   key=lambda fit: fit.cost)
+    return kernels_of(best.x), rms(best), least_blur
 
 
 class _Filter:
@@ -627,11 +663,11 @@ def _physics_passes(images, geometry, spacing, mask, scaled_normals, plain, *, s
     albedo_level = {band: float(np.nanmedian(np.linalg.norm(scaled_normals[band], axis=-1))) for band in REQUIRED_BANDS}
     images = _filled(images, geometry, scaled_normals, mask)
     if not scattering:
-        kernels, kernel_fit_rms = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0
+        kernels, kernel_fit_rms, least_blur = {band: IDENTITY_KERNEL for band in REQUIRED_BANDS}, 0.0, None
     elif kernels is not None:
-        kernels, kernel_fit_rms = _checked_kernels(kernels), None
+        kernels, kernel_fit_rms, least_blur = _checked_kernels(kernels), None, None
     else:
-        kernels, kernel_fit_rms = estimate_scattering_kernels(scaled_normals, spacing)
+        kernels, kernel_fit_rms, least_blur = estimate_scattering_kernels(scaled_normals, spacing)
     pad = int(min(max(shape) // 2, np.ceil(4 * max(k.length_um for k in kernels.values()) / min(spacing)) + 4))
     fourier = _Filter(shape, spacing, pad)
     transfer = {band: kernels[band].transfer(fourier.frequency) for band in REQUIRED_BANDS}
@@ -698,6 +734,7 @@ def _physics_passes(images, geometry, spacing, mask, scaled_normals, plain, *, s
     converged = bool(changes) and changes[-1] < tolerance
     diverged = bool(changes) and changes[-1] > DIVERGENCE
     components = {"scattering": scattering, "kernels_given": scattering and kernel_fit_rms is None,
+                  "least_blur_prior": least_blur,
                   "interreflection": interreflection, "highlights": highlights, "solver": geometry.solver,
                   "lights": geometry.kind,
                   "interreflection_radius_um": radius_um if interreflection else None,
