@@ -79,8 +79,9 @@ plausible outside ``PLAUSIBLE_RELIEF`` or below ``PLAUSIBLE_CORRELATION``.
 
 Known limits (numbers in docs/method.md): the method is validated in the simulator's
 ``default-v1`` skin optics and on Mitsuba renders; in the ``literature`` profile (every band
-blurred, no sharp diffuse band) and the ``paper-calibrated`` one (strong highlights) it is
-worse than the best band. The highlight fit assumes a white highlight; a
+blurred, no sharp diffuse band) it is below the best band on average but not on every field
+(9 of 12), and in the ``paper-calibrated`` one (strong highlights) it is worse than the best
+band on every field. The highlight fit assumes a white highlight; a
 slightly coloured one (Fresnel dispersion) cannot be told from a stronger white one plus a
 skin-coloured part, so its scale comes out high and the deepest wrinkles on dark skin come
 out too shallow; a smooth coat (Beckmann alpha 0.2) defeats the fit. The kernel fit needs
